@@ -1,0 +1,376 @@
+//! The pair-force loops, generic over the kernel (one compiled loop per kernel type), over
+//! whether the virial is accumulated (`V`, so normal steps pay nothing) and over whether there is
+//! a single particle type (`ONE`, which skips the type lookup).
+//!
+//! Both schemes produce results that do not depend on the number of threads: the work is split
+//! into a fixed, thread-count-independent set of tasks (z-slabs or z-layers of cells), each task
+//! adds in a fixed order, and partial virials are summed in task order.
+
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+use crate::cells::CellList;
+use crate::kernel::{KernelTable, PairKernel};
+use crate::rng::pair_xi;
+use crate::ForceScheme;
+
+/// The 13 forward neighbour offsets of the half shell (dz = 1: all 9; dz = 0: dy = 1, or
+/// dy = 0 and dx = 1). Together with the pairs inside a cell they visit each pair once.
+const HALF: [[i32; 3]; 13] = [
+    [1, 0, 0],
+    [-1, 1, 0],
+    [0, 1, 0],
+    [1, 1, 0],
+    [-1, -1, 1],
+    [0, -1, 1],
+    [1, -1, 1],
+    [-1, 0, 1],
+    [0, 0, 1],
+    [1, 0, 1],
+    [-1, 1, 1],
+    [0, 1, 1],
+    [1, 1, 1],
+];
+
+#[inline(always)]
+fn outer(a: DVec3, b: DVec3) -> DMat3 {
+    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
+}
+
+/// Force on sorted particle i (at shifted position `pis`) from sorted particle j, with the
+/// separation, or `None` outside the cutoff.
+#[inline(always)]
+fn pair<K: PairKernel, const ONE: bool>(
+    row: &[K],
+    cl: &CellList,
+    key: u64,
+    pis: DVec3,
+    vi: DVec3,
+    idi: u32,
+    j: usize,
+) -> Option<(DVec3, DVec3)> {
+    pair_dr::<K, ONE>(row, cl, key, pis - cl.pos[j], vi, idi, j)
+}
+
+/// Same with the separation `dr = x_i − x_j` (periodic image) given.
+#[inline(always)]
+fn pair_dr<K: PairKernel, const ONE: bool>(
+    row: &[K],
+    cl: &CellList,
+    key: u64,
+    dr: DVec3,
+    vi: DVec3,
+    idi: u32,
+    j: usize,
+) -> Option<(DVec3, DVec3)> {
+    let r2 = dr.length_squared();
+    let k = if ONE {
+        row[0]
+    } else {
+        row[cl.ptype[j] as usize]
+    };
+    if r2 < k.cutoff2() && r2 > 0.0 {
+        let xi = pair_xi(key, idi, cl.id[j]);
+        Some((dr, k.force(dr, r2, vi - cl.vel[j], xi)))
+    } else {
+        None
+    }
+}
+
+/// Computes the pair forces of the cell-sorted particles into `sf` (sorted order, overwritten)
+/// and returns the pair virial Σ_pairs r_ij ⊗ f_ij (zero unless `virial`).
+pub fn compute<K: PairKernel>(
+    scheme: ForceScheme,
+    cl: &CellList,
+    table: &KernelTable<K>,
+    key: u64,
+    sf: &mut Vec<DVec3>,
+    virial: bool,
+) -> DMat3 {
+    sf.clear();
+    sf.resize(cl.pos.len(), DVec3::ZERO);
+    let one = table.ntypes() == 1;
+    match (scheme, virial, one) {
+        (ForceScheme::HalfShell, false, false) => half_shell::<K, false, false>(cl, table, key, sf),
+        (ForceScheme::HalfShell, false, true) => half_shell::<K, false, true>(cl, table, key, sf),
+        (ForceScheme::HalfShell, true, false) => half_shell::<K, true, false>(cl, table, key, sf),
+        (ForceScheme::HalfShell, true, true) => half_shell::<K, true, true>(cl, table, key, sf),
+        (ForceScheme::Gather, false, false) => gather::<K, false, false>(cl, table, key, sf),
+        (ForceScheme::Gather, false, true) => gather::<K, false, true>(cl, table, key, sf),
+        (ForceScheme::Gather, true, false) => gather::<K, true, false>(cl, table, key, sf),
+        (ForceScheme::Gather, true, true) => gather::<K, true, true>(cl, table, key, sf),
+    }
+}
+
+// ------------------------------------------------------------------------------- half shell
+
+/// Up to two disjoint windows of the sorted force array that one slab task may write: its own
+/// slab and the next one (the next one wraps to slab 0 for the last slab).
+struct Win<'a> {
+    a: &'a mut [DVec3],
+    a0: usize,
+    b: &'a mut [DVec3],
+    b0: usize,
+}
+
+impl Win<'_> {
+    #[inline(always)]
+    fn add(&mut self, k: usize, f: DVec3) {
+        let ka = k.wrapping_sub(self.a0);
+        if ka < self.a.len() {
+            self.a[ka] += f;
+        } else {
+            self.b[k - self.b0] += f;
+        }
+    }
+}
+
+/// Slabs are single z-layers of cells, except that with an odd layer count the last slab holds
+/// the last two layers, so the slab count is even. Phase 1 runs the even slabs in parallel, phase
+/// 2 the odd ones; a slab writes only to itself and the next slab, so no two concurrent tasks
+/// share a particle, and each particle's sum has the same order whatever the thread count.
+fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    key: u64,
+    sf: &mut [DVec3],
+) -> DMat3 {
+    let nz = cl.grid.n[2];
+    let nslab = if nz % 2 == 0 { nz } else { nz - 1 };
+    let n = sf.len();
+    let b: Vec<usize> = (0..=nslab)
+        .map(|s| if s < nslab { cl.layer_start(s) } else { n })
+        .collect();
+    let layers = |s: usize| (s, if s + 1 == nslab { nz } else { s + 1 });
+    let mut vir = vec![DMat3::ZERO; nslab];
+
+    // Phase 1: even slabs; slab 2k writes [b(2k), b(2k+2)), contiguous and disjoint.
+    {
+        let mut tasks = Vec::with_capacity(nslab / 2);
+        let mut rest: &mut [DVec3] = sf;
+        let mut off = 0;
+        for s in (0..nslab).step_by(2) {
+            let end = b[s + 2];
+            let (w, r) = rest.split_at_mut(end - off);
+            tasks.push((
+                s,
+                Win {
+                    a: w,
+                    a0: off,
+                    b: &mut [],
+                    b0: 0,
+                },
+            ));
+            rest = r;
+            off = end;
+        }
+        let out: Vec<(usize, DMat3)> = tasks
+            .into_par_iter()
+            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, key, layers(s), &mut w)))
+            .collect();
+        for (s, m) in out {
+            vir[s] = m;
+        }
+    }
+    // Phase 2: odd slabs; slab 2k+1 writes [b(2k+1), b(2k+3)); the last one wraps to slab 0.
+    {
+        let (head, mut rest) = sf.split_at_mut(b[1]);
+        let mut head = Some(head);
+        let mut off = b[1];
+        let mut tasks = Vec::with_capacity(nslab / 2);
+        for s in (1..nslab).step_by(2) {
+            let last = s + 1 == nslab;
+            let end = if last { n } else { b[s + 2] };
+            let (w, r) = rest.split_at_mut(end - off);
+            let win = if last {
+                Win {
+                    a: w,
+                    a0: off,
+                    b: head.take().unwrap_or_default(),
+                    b0: 0,
+                }
+            } else {
+                Win {
+                    a: w,
+                    a0: off,
+                    b: &mut [],
+                    b0: 0,
+                }
+            };
+            tasks.push((s, win));
+            rest = r;
+            off = end;
+        }
+        let out: Vec<(usize, DMat3)> = tasks
+            .into_par_iter()
+            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, key, layers(s), &mut w)))
+            .collect();
+        for (s, m) in out {
+            vir[s] = m;
+        }
+    }
+    vir.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
+}
+
+fn slab<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    key: u64,
+    (z0, z1): (usize, usize),
+    win: &mut Win<'_>,
+) -> DMat3 {
+    let g = &cl.grid;
+    let [nx, ny, _] = g.n;
+    let mut vir = DMat3::ZERO;
+    let mut nb = [(0usize, 0usize, DVec3::ZERO); 13];
+    for z in z0..z1 {
+        for y in 0..ny {
+            for x in 0..nx {
+                let (s0, s1) = cl.range(g.index(x, y, z));
+                if s0 == s1 {
+                    continue;
+                }
+                for (k, d) in HALF.iter().enumerate() {
+                    let (c, sh) = g.neighbour(x, y, z, *d);
+                    let (a, e) = cl.range(c);
+                    nb[k] = (a, e, sh);
+                }
+                for i in s0..s1 {
+                    let pi = cl.pos[i];
+                    let vi = cl.vel[i];
+                    let idi = cl.id[i];
+                    let row = if ONE {
+                        table.row(0)
+                    } else {
+                        table.row(cl.ptype[i] as usize)
+                    };
+                    let mut fi = DVec3::ZERO;
+                    for j in i + 1..s1 {
+                        if let Some((dr, f)) = pair::<K, ONE>(row, cl, key, pi, vi, idi, j) {
+                            fi += f;
+                            win.add(j, -f);
+                            if V {
+                                vir += outer(dr, f);
+                            }
+                        }
+                    }
+                    for &(a, e, sh) in &nb {
+                        let pis = pi - sh;
+                        for j in a..e {
+                            if let Some((dr, f)) = pair::<K, ONE>(row, cl, key, pis, vi, idi, j) {
+                                fi += f;
+                                win.add(j, -f);
+                                if V {
+                                    vir += outer(dr, f);
+                                }
+                            }
+                        }
+                    }
+                    win.add(i, fi);
+                }
+            }
+        }
+    }
+    vir
+}
+
+// ----------------------------------------------------------------------------------- gather
+
+/// Every particle sums its own pairs over the 27 neighbour cells; tasks are z-layers, each
+/// writing only its own contiguous part of the sorted force array.
+fn gather<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    key: u64,
+    sf: &mut [DVec3],
+) -> DMat3 {
+    let nz = cl.grid.n[2];
+    let mut tasks = Vec::with_capacity(nz);
+    let mut rest: &mut [DVec3] = sf;
+    let mut off = 0;
+    for z in 0..nz {
+        let end = cl.layer_start(z + 1);
+        let (w, r) = rest.split_at_mut(end - off);
+        tasks.push((z, off, w));
+        rest = r;
+        off = end;
+    }
+    let out: Vec<DMat3> = tasks
+        .into_par_iter()
+        .map(|(z, off, w)| gather_layer::<K, V, ONE>(cl, table, key, z, off, w))
+        .collect();
+    out.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
+}
+
+fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    key: u64,
+    z: usize,
+    off: usize,
+    out: &mut [DVec3],
+) -> DMat3 {
+    let g = &cl.grid;
+    let [nx, ny, _] = g.n;
+    let mut vir = DMat3::ZERO;
+    let mut nb = [(0usize, 0usize, DVec3::ZERO); 27];
+    for y in 0..ny {
+        for x in 0..nx {
+            let (s0, s1) = cl.range(g.index(x, y, z));
+            if s0 == s1 {
+                continue;
+            }
+            let mut k = 0;
+            for dz in -1..=1 {
+                for dy in -1..=1 {
+                    for dx in -1..=1 {
+                        let (c, sh) = g.neighbour(x, y, z, [dx, dy, dz]);
+                        let (a, e) = cl.range(c);
+                        nb[k] = (a, e, sh);
+                        k += 1;
+                    }
+                }
+            }
+            for i in s0..s1 {
+                let pi = cl.pos[i];
+                let vi = cl.vel[i];
+                let idi = cl.id[i];
+                let row = if ONE {
+                    table.row(0)
+                } else {
+                    table.row(cl.ptype[i] as usize)
+                };
+                let mut fi = DVec3::ZERO;
+                for &(a, e, sh) in &nb {
+                    if sh == DVec3::ZERO {
+                        for j in a..e {
+                            // j == i gives r² = 0 and is skipped inside `pair`.
+                            if let Some((dr, f)) = pair::<K, ONE>(row, cl, key, pi, vi, idi, j) {
+                                fi += f;
+                                if V {
+                                    vir += outer(dr, f * 0.5);
+                                }
+                            }
+                        }
+                    } else {
+                        // Across the boundary: dr = (x_i − x_j) − shift, which is exactly the
+                        // negative of what j computes for i (shift → −shift), so Newton's third
+                        // law holds bit for bit.
+                        for j in a..e {
+                            let dr = (pi - cl.pos[j]) - sh;
+                            if let Some((dr, f)) = pair_dr::<K, ONE>(row, cl, key, dr, vi, idi, j)
+                            {
+                                fi += f;
+                                if V {
+                                    vir += outer(dr, f * 0.5);
+                                }
+                            }
+                        }
+                    }
+                }
+                out[i - off] = fi;
+            }
+        }
+    }
+    vir
+}

@@ -1,0 +1,301 @@
+//! Plain parameter structs. Every value is in DPD model units (length rc of the solvent, energy
+//! kBT of the solvent, mass m of a solvent particle); each field documents its default.
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::{EngineError, Real};
+
+/// DPD parameters of one type pair.
+///
+/// Forces on i from j (r = |x_i − x_j| < rc, e = (x_i − x_j)/r, w = 1 − r/rc):
+/// F^C = a·w·e, F^D = −γ·w^D·(e·v_ij)·e, F^R = σ·w^R·ξ·e/√Δt with w^R = w^s, w^D = (w^R)²,
+/// σ² = 2γ·kBT.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct PairParams {
+    /// Conservative repulsion a (energy/length). Standard fluid: 25.
+    pub a: Real,
+    /// Dissipative coefficient γ (mass/time). Standard fluid: 4.5.
+    pub gamma: Real,
+    /// Thermostat temperature kBT of the pair (energy); σ = √(2γ kBT). Standard: 1.
+    pub kbt: Real,
+    /// Cutoff radius rc (length). Standard: 1.
+    pub rc: Real,
+    /// Weight exponent s of w^R = (1 − r/rc)^s. Standard: 1; 1/2 and 1/4 raise the Schmidt number.
+    pub s: Real,
+}
+
+impl PairParams {
+    /// The Groot–Warren standard fluid: a = 25, γ = 4.5, kBT = 1, rc = 1, s = 1.
+    pub const fn groot_warren() -> Self {
+        Self {
+            a: 25.0,
+            gamma: 4.5,
+            kbt: 1.0,
+            rc: 1.0,
+            s: 1.0,
+        }
+    }
+
+    /// A pair that does not interact at all.
+    pub const fn none() -> Self {
+        Self {
+            a: 0.0,
+            gamma: 0.0,
+            kbt: 0.0,
+            rc: 0.0,
+            s: 1.0,
+        }
+    }
+
+    /// σ = √(2γ kBT).
+    pub fn sigma(&self) -> Real {
+        (2.0 * self.gamma * self.kbt).sqrt()
+    }
+
+    fn validate(&self, what: &str) -> Result<(), EngineError> {
+        let ok = self.a.is_finite()
+            && self.gamma.is_finite()
+            && self.gamma >= 0.0
+            && self.kbt.is_finite()
+            && self.kbt >= 0.0
+            && self.rc.is_finite()
+            && self.rc >= 0.0
+            && self.s.is_finite()
+            && self.s > 0.0;
+        if ok {
+            Ok(())
+        } else {
+            Err(EngineError::invalid(
+                what,
+                format!("need finite a, γ ≥ 0, kBT ≥ 0, rc ≥ 0, s > 0; got {self:?}"),
+            ))
+        }
+    }
+}
+
+/// Properties of one particle type.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TypeSpec {
+    /// Name for messages and output (e.g. "solvent", "wall", "membrane").
+    pub name: String,
+    /// Particle mass (mass units). Default 1.
+    pub mass: Real,
+    /// Frozen particles are never moved by the integrator (wall particles). They still exert
+    /// pair forces on mobile particles; frozen–frozen pairs are skipped. Default false.
+    pub frozen: bool,
+    /// Constant external force on every particle of this type (force units). Default 0.
+    pub body_force: DVec3,
+}
+
+impl TypeSpec {
+    /// A mobile type of unit mass and no body force.
+    pub fn new(name: impl Into<String>) -> Self {
+        Self {
+            name: name.into(),
+            mass: 1.0,
+            frozen: false,
+            body_force: DVec3::ZERO,
+        }
+    }
+
+    /// Same, frozen (wall particles).
+    pub fn frozen(name: impl Into<String>) -> Self {
+        Self {
+            frozen: true,
+            ..Self::new(name)
+        }
+    }
+}
+
+/// Types and the symmetric per-type-pair parameter table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ForceField {
+    types: Vec<TypeSpec>,
+    /// Row-major `ntypes × ntypes`, kept symmetric.
+    pairs: Vec<PairParams>,
+}
+
+impl ForceField {
+    /// One mobile type "solvent" with parameters `p`.
+    pub fn single(p: PairParams) -> Self {
+        Self {
+            types: vec![TypeSpec::new("solvent")],
+            pairs: vec![p],
+        }
+    }
+
+    /// The given types; every pair starts as `default`.
+    pub fn new(types: Vec<TypeSpec>, default: PairParams) -> Result<Self, EngineError> {
+        if types.is_empty() || types.len() > u16::MAX as usize {
+            return Err(EngineError::invalid(
+                "types",
+                format!("need 1..=65535 types, got {}", types.len()),
+            ));
+        }
+        let n = types.len();
+        let f = Self {
+            types,
+            pairs: vec![default; n * n],
+        };
+        f.validate()?;
+        Ok(f)
+    }
+
+    /// Sets the parameters of the pair (i, j) and (j, i).
+    pub fn set_pair(&mut self, i: usize, j: usize, p: PairParams) -> Result<(), EngineError> {
+        let n = self.types.len();
+        if i >= n || j >= n {
+            return Err(EngineError::invalid(
+                "pair types",
+                format!("({i}, {j}) out of range for {n} types"),
+            ));
+        }
+        p.validate(&format!("pair ({i}, {j})"))?;
+        self.pairs[i * n + j] = p;
+        self.pairs[j * n + i] = p;
+        Ok(())
+    }
+
+    /// Mutable access to a type's properties (mass, frozen, body force).
+    pub fn type_mut(&mut self, t: usize) -> Option<&mut TypeSpec> {
+        self.types.get_mut(t)
+    }
+
+    /// Sets the body force of type `t`.
+    pub fn set_body_force(&mut self, t: usize, f: DVec3) -> Result<(), EngineError> {
+        if !f.is_finite() {
+            return Err(EngineError::invalid("body force", format!("{f}")));
+        }
+        let n = self.types.len();
+        self.types
+            .get_mut(t)
+            .ok_or_else(|| EngineError::invalid("type", format!("{t} out of range for {n} types")))?
+            .body_force = f;
+        Ok(())
+    }
+
+    /// Number of types.
+    pub fn ntypes(&self) -> usize {
+        self.types.len()
+    }
+
+    /// The types.
+    pub fn types(&self) -> &[TypeSpec] {
+        &self.types
+    }
+
+    /// Parameters of the pair (i, j).
+    pub fn pair(&self, i: usize, j: usize) -> &PairParams {
+        &self.pairs[i * self.types.len() + j]
+    }
+
+    /// Largest cutoff over all pairs that can interact (not frozen–frozen).
+    pub fn max_cutoff(&self) -> Real {
+        let n = self.types.len();
+        let mut rc: Real = 0.0;
+        for i in 0..n {
+            for j in 0..n {
+                if !(self.types[i].frozen && self.types[j].frozen) {
+                    rc = rc.max(self.pairs[i * n + j].rc);
+                }
+            }
+        }
+        rc
+    }
+
+    /// Checks every value.
+    pub fn validate(&self) -> Result<(), EngineError> {
+        let n = self.types.len();
+        if n == 0 || self.pairs.len() != n * n {
+            return Err(EngineError::invalid("force field", "pair table size"));
+        }
+        for (t, ty) in self.types.iter().enumerate() {
+            if !(ty.mass.is_finite() && ty.mass > 0.0) {
+                return Err(EngineError::invalid(
+                    format!("mass of type {t} ({})", ty.name),
+                    format!("must be finite and > 0, got {}", ty.mass),
+                ));
+            }
+            if !ty.body_force.is_finite() {
+                return Err(EngineError::invalid(
+                    format!("body force of type {t}"),
+                    format!("{}", ty.body_force),
+                ));
+            }
+        }
+        for i in 0..n {
+            for j in 0..n {
+                self.pairs[i * n + j].validate(&format!("pair ({i}, {j})"))?;
+                if self.pairs[i * n + j] != self.pairs[j * n + i] {
+                    return Err(EngineError::invalid(
+                        format!("pair ({i}, {j})"),
+                        "parameter table must be symmetric",
+                    ));
+                }
+            }
+        }
+        if self.max_cutoff() <= 0.0 {
+            return Err(EngineError::invalid("force field", "no pair has a cutoff > 0"));
+        }
+        Ok(())
+    }
+}
+
+/// How the pair loop is organised. Both give bit-identical results for any thread count.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum ForceScheme {
+    /// Each pair once (half shell of 13 neighbour cells); Newton's third law applied on the spot.
+    /// Threads work on z-slabs of cells in two colours (even, odd slabs), so no two threads ever
+    /// write the same particle; the slab partition does not depend on the thread count.
+    #[default]
+    HalfShell,
+    /// Each particle sums its own pairs over all 27 neighbour cells (every pair computed twice).
+    Gather,
+}
+
+/// Box, time step, integrator and noise settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SimConfig {
+    /// Box edge lengths (length units). No default; each ≥ 3 × the largest cutoff.
+    pub box_lengths: DVec3,
+    /// Time step Δt (time units). Standard fluid: 0.01.
+    pub dt: Real,
+    /// λ of the Groot–Warren modified velocity-Verlet (predicted velocity v + λΔt f/m).
+    /// Default 0.5 (= plain velocity Verlet with the predicted velocity).
+    pub lambda: Real,
+    /// Seed of the pair noise (and nothing else).
+    pub seed: u64,
+    /// Pair loop organisation. Default [`ForceScheme::HalfShell`].
+    pub scheme: ForceScheme,
+}
+
+impl SimConfig {
+    /// A config with λ = 0.5 and the default scheme.
+    pub fn new(box_lengths: DVec3, dt: Real, seed: u64) -> Self {
+        Self {
+            box_lengths,
+            dt,
+            lambda: 0.5,
+            seed,
+            scheme: ForceScheme::default(),
+        }
+    }
+
+    /// Checks dt and λ (the box is checked against the cutoff by the simulation).
+    pub fn validate(&self) -> Result<(), EngineError> {
+        if !(self.dt.is_finite() && self.dt > 0.0) {
+            return Err(EngineError::invalid(
+                "time step dt",
+                format!("must be finite and > 0, got {}", self.dt),
+            ));
+        }
+        if !(self.lambda.is_finite() && (0.0..=1.0).contains(&self.lambda)) {
+            return Err(EngineError::invalid(
+                "lambda",
+                format!("must be in [0, 1], got {}", self.lambda),
+            ));
+        }
+        Ok(())
+    }
+}

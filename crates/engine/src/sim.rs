@@ -1,0 +1,464 @@
+//! The stepper: Groot–Warren modified velocity-Verlet with extension hooks.
+//!
+//! One step (n → n + 1), with λ from [`SimConfig::lambda`]:
+//! 1. v ← v + ½Δt f/m; x ← x + Δt v (mobile types only); wrap into the box; stability check.
+//! 2. [`Extension::after_position_update`] (bounce-back goes here).
+//! 3. Predicted velocity ṽ = v + (λ − ½)Δt f/m (= v_old + λΔt f/m); pair forces f(x, ṽ) with the
+//!    noise of force evaluation n + 1; + body forces; [`Extension::add_forces`].
+//! 4. v ← v + ½Δt f/m; stability check; step counter n + 1; [`Extension::end_of_step`].
+//!
+//! The forces of the last evaluation are kept in [`Particles::force`]; they are part of the
+//! checkpoint ([`SimState`]) so that a restart continues bit-identically.
+
+use glam::{DMat3, DVec3};
+use rayon::prelude::*;
+
+use crate::cells::{CellGrid, CellList};
+use crate::error::{CAUSE_DT, CAUSE_FAST};
+use crate::kernel::DpdTable;
+use crate::rng::step_key;
+use crate::{
+    pairs, EngineError, ForceField, Particles, PeriodicBox, Real, SimConfig, SimState, StateMut,
+};
+
+/// Hooks called by [`Simulation::step`]. Every method has a do-nothing default, and `()`
+/// implements the trait, so a plain fluid pays nothing (the calls are statically dispatched and
+/// inlined away). Walls (bounce-back, adaptive wall force), membranes (vertex forces, bounce-back
+/// on triangles) and position-dependent driving forces are written as extensions.
+pub trait Extension {
+    /// After the drift: positions at t + Δt (wrapped into the box), velocities half-kicked
+    /// (v + ½Δt f/m). Reflect particles at walls/membranes here. Keep positions inside the box.
+    fn after_position_update(&mut self, _state: &mut StateMut<'_>) -> Result<(), EngineError> {
+        Ok(())
+    }
+
+    /// After the pair and body forces of the new positions: add forces to `state.force`.
+    fn add_forces(&mut self, _state: &mut StateMut<'_>) -> Result<(), EngineError> {
+        Ok(())
+    }
+
+    /// After the final half-kick: positions and velocities at t + Δt. Sample, control.
+    fn end_of_step(&mut self, _state: &mut StateMut<'_>) -> Result<(), EngineError> {
+        Ok(())
+    }
+}
+
+impl Extension for () {}
+
+/// A DPD simulation, generic over its [`Extension`] (default `()`: a plain fluid).
+#[derive(Debug)]
+pub struct Simulation<E: Extension = ()> {
+    config: SimConfig,
+    field: ForceField,
+    domain: PeriodicBox,
+    particles: Particles,
+    step: u64,
+    ext: E,
+    cells: CellList,
+    table: DpdTable,
+    sforce: Vec<DVec3>,
+    inv_mass: Vec<Real>,
+    frozen: Vec<bool>,
+    body: Vec<DVec3>,
+    any_body: bool,
+}
+
+impl Simulation<()> {
+    /// A plain fluid. Validates everything, wraps positions into the box and computes the initial
+    /// forces (force evaluation 0, with the initial velocities as the predicted velocities).
+    pub fn new(
+        config: SimConfig,
+        field: ForceField,
+        particles: Particles,
+    ) -> Result<Self, EngineError> {
+        Self::with_extension(config, field, particles, ())
+    }
+}
+
+impl<E: Extension> Simulation<E> {
+    /// A simulation with an extension. Computes the initial forces, including the extension's.
+    pub fn with_extension(
+        config: SimConfig,
+        field: ForceField,
+        mut particles: Particles,
+        ext: E,
+    ) -> Result<Self, EngineError> {
+        particles.validate(&field)?;
+        let domain = PeriodicBox::new(config.box_lengths)?;
+        for p in particles.pos.iter_mut() {
+            *p = domain.wrap(*p);
+        }
+        let mut sim = Self::assemble(config, field, particles, 0, ext)?;
+        sim.compute_forces(false)?;
+        Ok(sim)
+    }
+
+    /// Continues from a saved state (no force recomputation: the saved forces are used, so the
+    /// continuation is bit-identical to an uninterrupted run).
+    pub fn from_state(state: SimState, ext: E) -> Result<Self, EngineError> {
+        state.particles.validate(&state.field)?;
+        let domain = PeriodicBox::new(state.config.box_lengths)?;
+        if let Some(i) = state.particles.pos.iter().position(|p| domain.wrap(*p) != *p) {
+            return Err(EngineError::invalid(
+                format!("saved particle {i}"),
+                format!("position {} outside the box", state.particles.pos[i]),
+            ));
+        }
+        Self::assemble(state.config, state.field, state.particles, state.step, ext)
+    }
+
+    fn assemble(
+        config: SimConfig,
+        field: ForceField,
+        particles: Particles,
+        step: u64,
+        ext: E,
+    ) -> Result<Self, EngineError> {
+        config.validate()?;
+        field.validate()?;
+        let domain = PeriodicBox::new(config.box_lengths)?;
+        let grid = CellGrid::new(&domain, field.max_cutoff())?;
+        let types = field.types();
+        Ok(Self {
+            table: DpdTable::new(&field, config.dt),
+            inv_mass: types.iter().map(|t| 1.0 / t.mass).collect(),
+            frozen: types.iter().map(|t| t.frozen).collect(),
+            body: types.iter().map(|t| t.body_force).collect(),
+            any_body: types.iter().any(|t| t.body_force != DVec3::ZERO && !t.frozen),
+            cells: CellList::new(grid),
+            sforce: Vec::new(),
+            config,
+            field,
+            domain,
+            particles,
+            step,
+            ext,
+        })
+    }
+
+    /// A copy of everything needed to restart bit-identically.
+    pub fn state(&self) -> SimState {
+        SimState {
+            config: self.config.clone(),
+            field: self.field.clone(),
+            particles: self.particles.clone(),
+            step: self.step,
+        }
+    }
+
+    /// Consumes the simulation into its state and extension.
+    pub fn into_parts(self) -> (SimState, E) {
+        (
+            SimState {
+                config: self.config,
+                field: self.field,
+                particles: self.particles,
+                step: self.step,
+            },
+            self.ext,
+        )
+    }
+
+    /// The particles (storage order is fixed for the life of the simulation).
+    pub fn particles(&self) -> &Particles {
+        &self.particles
+    }
+
+    /// The force field.
+    pub fn field(&self) -> &ForceField {
+        &self.field
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &SimConfig {
+        &self.config
+    }
+
+    /// The box.
+    pub fn domain(&self) -> &PeriodicBox {
+        &self.domain
+    }
+
+    /// The cell grid used by the pair loop.
+    pub fn grid(&self) -> &CellGrid {
+        &self.cells.grid
+    }
+
+    /// Completed steps.
+    pub fn step_count(&self) -> u64 {
+        self.step
+    }
+
+    /// Simulated time (steps × Δt).
+    pub fn time(&self) -> Real {
+        self.step as Real * self.config.dt
+    }
+
+    /// The extension.
+    pub fn extension(&self) -> &E {
+        &self.ext
+    }
+
+    /// The extension, mutably.
+    pub fn extension_mut(&mut self) -> &mut E {
+        &mut self.ext
+    }
+
+    /// Changes the body force of type `t` (takes effect from the next force evaluation).
+    pub fn set_body_force(&mut self, t: usize, f: DVec3) -> Result<(), EngineError> {
+        self.field.set_body_force(t, f)?;
+        self.body = self.field.types().iter().map(|t| t.body_force).collect();
+        self.any_body = self
+            .field
+            .types()
+            .iter()
+            .any(|t| t.body_force != DVec3::ZERO && !t.frozen);
+        Ok(())
+    }
+
+    /// Advances one step.
+    pub fn step(&mut self) -> Result<(), EngineError> {
+        self.advance(false).map(|_| ())
+    }
+
+    /// Advances one step and returns the pair virial W = Σ_pairs r_ij ⊗ f_ij of its force
+    /// evaluation (conservative + dissipative + random); see [`crate::observe::pressure_tensor`].
+    pub fn step_with_virial(&mut self) -> Result<DMat3, EngineError> {
+        self.advance(true)
+    }
+
+    /// Advances `n` steps.
+    pub fn run(&mut self, n: u64) -> Result<(), EngineError> {
+        for _ in 0..n {
+            self.advance(false)?;
+        }
+        Ok(())
+    }
+
+    /// Recomputes the forces at the current positions, with the current velocities as predicted
+    /// velocities and the noise of evaluation `step`, and returns the pair virial. Not part of
+    /// time stepping (it replaces the saved forces, so the trajectory changes): for benchmarks
+    /// and diagnostics.
+    pub fn recompute_forces(&mut self) -> Result<DMat3, EngineError> {
+        self.compute_forces(true)
+    }
+
+    fn state_mut(&mut self) -> (StateMut<'_>, &mut E) {
+        let p = &mut self.particles;
+        (
+            StateMut {
+                pos: &mut p.pos,
+                vel: &mut p.vel,
+                force: &mut p.force,
+                ptype: &p.ptype,
+                id: &p.id,
+                domain: &self.domain,
+                field: &self.field,
+                dt: self.config.dt,
+                step: self.step,
+            },
+            &mut self.ext,
+        )
+    }
+
+    /// Pair forces at the current positions with ṽ = v + c·f/m (c = (λ − ½)Δt during a step,
+    /// 0 for the initial evaluation), noise of evaluation `self.step` (+1 during a step, via
+    /// `key_step`), plus body forces and the extension's forces.
+    fn forces_at(&mut self, key_step: u64, c: Real, virial: bool) -> Result<DMat3, EngineError> {
+        let p = &self.particles;
+        let (inv_mass, frozen) = (&self.inv_mass, &self.frozen);
+        let vel_of = |i: usize| {
+            let t = p.ptype[i] as usize;
+            if frozen[t] || c == 0.0 {
+                p.vel[i]
+            } else {
+                p.vel[i] + p.force[i] * (c * inv_mass[t])
+            }
+        };
+        self.cells.build(&p.pos, &p.ptype, &p.id, vel_of);
+        let key = step_key(self.config.seed, key_step);
+        let w = match &self.table {
+            DpdTable::Linear(t) => pairs::compute(
+                self.config.scheme,
+                &self.cells,
+                t,
+                key,
+                &mut self.sforce,
+                virial,
+            ),
+            DpdTable::General(t) => pairs::compute(
+                self.config.scheme,
+                &self.cells,
+                t,
+                key,
+                &mut self.sforce,
+                virial,
+            ),
+        };
+        let force = &mut self.particles.force;
+        for (k, &i) in self.cells.perm.iter().enumerate() {
+            force[i as usize] = self.sforce[k];
+        }
+        if self.any_body {
+            let body = &self.body;
+            for (f, &t) in force.iter_mut().zip(&self.particles.ptype) {
+                *f += body[t as usize];
+            }
+        }
+        Ok(w)
+    }
+
+    fn compute_forces(&mut self, virial: bool) -> Result<DMat3, EngineError> {
+        let w = self.forces_at(self.step, 0.0, virial)?;
+        let (mut s, ext) = self.state_mut();
+        ext.add_forces(&mut s)?;
+        Ok(w)
+    }
+
+    fn advance(&mut self, virial: bool) -> Result<DMat3, EngineError> {
+        let dt = self.config.dt;
+        let h = 0.5 * dt;
+        let step = self.step;
+        let cell = self.cells.grid.size.min_element();
+        let max_d2 = cell * cell;
+
+        // 1. half kick + drift, in parallel; the first offending index (if any) is reported.
+        {
+            let (inv_mass, frozen, domain) = (&self.inv_mass, &self.frozen, &self.domain);
+            let p = &mut self.particles;
+            let bad = p
+                .pos
+                .par_iter_mut()
+                .zip(p.vel.par_iter_mut())
+                .zip(p.force.par_iter())
+                .zip(p.ptype.par_iter())
+                .enumerate()
+                .with_min_len(4096)
+                .filter_map(|(i, (((x, v), f), &t))| {
+                    let t = t as usize;
+                    if frozen[t] {
+                        return None;
+                    }
+                    *v += *f * (h * inv_mass[t]);
+                    let d = *v * dt;
+                    if d.length_squared() <= max_d2 {
+                        *x = domain.wrap(*x + d);
+                        None
+                    } else {
+                        Some(i)
+                    }
+                })
+                .min();
+            if let Some(i) = bad {
+                return Err(self.instability(i, step, cell));
+            }
+        }
+
+        // 2. extension: reflections
+        {
+            let (mut s, ext) = self.state_mut();
+            ext.after_position_update(&mut s)
+                .map_err(|e| wrap_ext(e, step))?;
+        }
+
+        // 3. forces with the predicted velocity, noise of evaluation step + 1
+        let w = self.forces_at(step + 1, (self.config.lambda - 0.5) * dt, virial)?;
+        {
+            let (mut s, ext) = self.state_mut();
+            ext.add_forces(&mut s).map_err(|e| wrap_ext(e, step))?;
+        }
+
+        // 4. second half kick + finiteness check
+        {
+            let (inv_mass, frozen) = (&self.inv_mass, &self.frozen);
+            let p = &mut self.particles;
+            let bad = p
+                .vel
+                .par_iter_mut()
+                .zip(p.force.par_iter())
+                .zip(p.ptype.par_iter())
+                .enumerate()
+                .with_min_len(4096)
+                .filter_map(|(i, ((v, f), &t))| {
+                    let t = t as usize;
+                    if !frozen[t] {
+                        *v += *f * (h * inv_mass[t]);
+                    }
+                    if v.is_finite() && f.is_finite() {
+                        None
+                    } else {
+                        Some(i)
+                    }
+                })
+                .min();
+            if let Some(i) = bad {
+                return Err(self.instability(i, step, cell));
+            }
+        }
+        self.step += 1;
+        {
+            let (mut s, ext) = self.state_mut();
+            ext.end_of_step(&mut s).map_err(|e| wrap_ext(e, step))?;
+        }
+        Ok(w)
+    }
+
+    fn instability(&self, i: usize, step: u64, cell: Real) -> EngineError {
+        let p = &self.particles;
+        let (id, ptype) = (p.id[i], p.ptype[i]);
+        let (x, v, f) = (p.pos[i], p.vel[i], p.force[i]);
+        if !f.is_finite() {
+            return EngineError::NonFinite {
+                step,
+                id,
+                index: i,
+                ptype,
+                quantity: "force",
+                value: format!("{f}"),
+                cause: CAUSE_DT,
+            };
+        }
+        if !v.is_finite() {
+            return EngineError::NonFinite {
+                step,
+                id,
+                index: i,
+                ptype,
+                quantity: "velocity",
+                value: format!("{v}"),
+                cause: CAUSE_DT,
+            };
+        }
+        if !x.is_finite() {
+            return EngineError::NonFinite {
+                step,
+                id,
+                index: i,
+                ptype,
+                quantity: "position",
+                value: format!("{x}"),
+                cause: CAUSE_DT,
+            };
+        }
+        EngineError::TooFast {
+            step,
+            id,
+            index: i,
+            ptype,
+            displacement: (v * self.config.dt).length(),
+            cell,
+            velocity: format!("{v}"),
+            cause: CAUSE_FAST,
+        }
+    }
+}
+
+fn wrap_ext(e: EngineError, step: u64) -> EngineError {
+    match e {
+        EngineError::Extension { .. } | EngineError::NonFinite { .. } | EngineError::TooFast { .. } => e,
+        other => EngineError::Extension {
+            step,
+            message: other.to_string(),
+        },
+    }
+}

@@ -1,0 +1,26 @@
+//! The coarse-grained red-blood-cell membrane of Pivkin & Karniadakis (PRL 101, 118105, 2008).
+//!
+//! * [`params`]: the fine model and its coarse-graining to any N (Eqs. 4, 8–12), in SI.
+//! * [`shape`]: the Evans–Fung biconcave reference shape (Eq. 7, with the corrected c0).
+//! * [`mesh`]: triangulated closed surfaces, their topology (links, dihedrals), quality and file formats.
+//! * [`meshgen`]: the paper's procedure: uniform points, triangulation, relaxation with link flips.
+//! * [`forces`]: the free energy (Eq. 1) — WLC + C/A, bending, global area and volume — and its exact gradient.
+//! * [`stretch`]: the optical-tweezers stretching experiment at static equilibrium.
+//!
+//! Units: this crate is unit-agnostic; callers pass numbers in one consistent system.
+//! The stretching driver uses µm, pN and pN·µm (so kBT = 4.142e-3 pN·µm at 300 K).
+
+pub mod forces;
+pub mod mesh;
+pub mod meshgen;
+pub mod meshio;
+pub mod params;
+pub mod shape;
+pub mod stretch;
+
+pub use forces::{EnergyTerms, MembraneModel, ReferenceState};
+pub use mesh::{Mesh, MeshError, Topology};
+pub use params::ModelParams;
+
+/// Floating-point type of the whole project.
+pub type Real = f64;

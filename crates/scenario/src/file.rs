@@ -1,0 +1,436 @@
+//! Parsing, overriding and validating scenario files.
+
+use crate::FORMAT_VERSION;
+use hemodpd_membrane::ReferenceState;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// A bad scenario: always names the file and, where it applies, the key, the value and what is allowed.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    #[error("{file}: cannot read: {source}")]
+    Read { file: String, source: std::io::Error },
+    #[error("{file}: {message}")]
+    Syntax { file: String, message: String },
+    #[error("{file}: key `{key}` = {value} is not allowed: {allowed}")]
+    Value { file: String, key: String, value: String, allowed: String },
+    #[error("{file}: missing key `{key}` ({what})")]
+    Missing { file: String, key: String, what: String },
+    #[error("--set {assignment}: {message}")]
+    Override { assignment: String, message: String },
+}
+
+/// A validated scenario.
+#[derive(Clone, Debug, Serialize)]
+#[serde(untagged)]
+pub enum Scenario {
+    Stretching(StretchingScenario),
+    DpdFluid(FluidScenario),
+}
+
+impl Scenario {
+    pub fn seed(&self) -> u64 {
+        match self {
+            Scenario::Stretching(s) => s.seed,
+            Scenario::DpdFluid(s) => s.seed,
+        }
+    }
+    pub fn kind(&self) -> &'static str {
+        match self {
+            Scenario::Stretching(_) => "stretching",
+            Scenario::DpdFluid(_) => "dpd-fluid",
+        }
+    }
+    /// The resolved scenario (defaults filled in, overrides applied) as TOML text.
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).unwrap_or_default()
+    }
+}
+
+fn default_temperature() -> f64 {
+    300.0
+}
+fn one() -> f64 {
+    1.0
+}
+fn default_k_area() -> f64 {
+    hemodpd_membrane::forces::DEFAULT_K_AREA_N_PER_M
+}
+fn default_k_volume() -> f64 {
+    hemodpd_membrane::forces::DEFAULT_K_VOLUME_N_PER_M2
+}
+fn default_end_fraction() -> f64 {
+    0.05
+}
+fn default_tolerance() -> f64 {
+    1e-4
+}
+fn default_max_iterations() -> u64 {
+    100_000
+}
+fn yes() -> bool {
+    true
+}
+
+/// `[membrane]`: the cell model.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MembraneSection {
+    /// Number of mesh vertices N (≥ 100): sets the level of coarse-graining (Eqs. 8, 9, 12).
+    pub vertices: i64,
+    /// Temperature, K (default 300).
+    #[serde(default = "default_temperature")]
+    pub temperature_k: f64,
+    /// `"stress-free"` (default: each link and triangle unstrained at rest) or `"uniform"` (the paper's one L0).
+    #[serde(default)]
+    pub reference: ReferenceState,
+    /// Multiplies the Eq. 12 persistence length (the paper's ±10 % sensitivity study). Default 1.
+    #[serde(default = "one")]
+    pub persistence_scale: f64,
+    /// Explicit persistence length in nm, replacing Eq. 12 (e.g. the fine model's 7.5).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub persistence_length_nm: Option<f64>,
+    /// Global area constraint k_a, N/m (default 5e-3 = 5000 pN/µm ≈ 600 μ0).
+    #[serde(default = "default_k_area")]
+    pub area_constraint_n_per_m: f64,
+    /// Global volume constraint k_v, N/m² (default 5e3 = 5000 pN/µm²).
+    #[serde(default = "default_k_volume")]
+    pub volume_constraint_n_per_m2: f64,
+    /// A user's mesh (OFF, PLY or NAME.vertices.csv with NAME.triangles.csv, lengths in µm),
+    /// relative to the scenario file. Default: generate (and cache) the relaxed Evans–Fung mesh.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh_file: Option<PathBuf>,
+}
+
+/// `[stretching]`: the optical-tweezers protocol.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StretchingSection {
+    /// Total stretching forces, pN, increasing, within [0, 500].
+    pub forces_pn: Vec<f64>,
+    /// Fraction of vertices loaded at each end (default 0.05, the paper's).
+    #[serde(default = "default_end_fraction")]
+    pub end_fraction: f64,
+    /// Static equilibrium: the largest net force on any vertex below this, pN (default 1e-4).
+    #[serde(default = "default_tolerance")]
+    pub tolerance_pn: f64,
+    /// Iteration cap per force (default 100000); not converging is an error.
+    #[serde(default = "default_max_iterations")]
+    pub max_iterations: u64,
+}
+
+/// `[output]`
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StretchingOutput {
+    /// Write the shape at each force to `shapes.h5` (+ `.xmf`). Default true.
+    #[serde(default = "yes")]
+    pub shapes: bool,
+}
+
+impl Default for StretchingOutput {
+    fn default() -> Self {
+        Self { shapes: true }
+    }
+}
+
+/// `kind = "stretching"`
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StretchingScenario {
+    pub format_version: u32,
+    pub kind: String,
+    /// Seed of everything random (mesh point jitter).
+    pub seed: u64,
+    pub membrane: MembraneSection,
+    pub stretching: StretchingSection,
+    #[serde(default)]
+    pub output: StretchingOutput,
+    /// Directory of the scenario file (to resolve relative paths); not part of the file.
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
+/// `kind = "dpd-fluid"`: the standard periodic DPD fluid, in model (DPD) units.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidScenario {
+    pub format_version: u32,
+    pub kind: String,
+    pub seed: u64,
+    pub fluid: FluidSection,
+    pub run: FluidRunSection,
+}
+
+fn f_rho() -> f64 {
+    3.0
+}
+fn f_a() -> f64 {
+    25.0
+}
+fn f_gamma() -> f64 {
+    4.5
+}
+fn f_cut() -> f64 {
+    1.0
+}
+fn f_lambda() -> f64 {
+    0.5
+}
+fn f_dt() -> f64 {
+    0.01
+}
+
+/// `[fluid]`, model units: lengths in rc, energies in kBT, masses in m.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidSection {
+    /// Number density, particles per rc³ (default 3).
+    #[serde(default = "f_rho")]
+    pub density: f64,
+    /// Box edges, rc (each ≥ 3 rc).
+    pub box_size: [f64; 3],
+    /// Conservative amplitude a (default 25).
+    #[serde(default = "f_a")]
+    pub a: f64,
+    /// Dissipative coefficient γ (default 4.5).
+    #[serde(default = "f_gamma")]
+    pub gamma: f64,
+    /// Thermal energy kBT (default 1).
+    #[serde(default = "one")]
+    pub kbt: f64,
+    /// Cut-off radius (default 1).
+    #[serde(default = "f_cut")]
+    pub cutoff: f64,
+    /// Random-weight exponent s, w^R = (1 − r/rc)^s (default 1; 0.5 and 0.25 raise the Schmidt number).
+    #[serde(default = "one")]
+    pub weight_exponent: f64,
+}
+
+/// `[run]` of the fluid scenario.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidRunSection {
+    /// Time step (default 0.01).
+    #[serde(default = "f_dt")]
+    pub timestep: f64,
+    /// Groot–Warren λ (default 0.5).
+    #[serde(default = "f_lambda")]
+    pub lambda: f64,
+    /// Equilibration steps (not sampled).
+    pub equilibration_steps: u64,
+    /// Production steps.
+    pub steps: u64,
+    /// Sample T and p every this many steps.
+    pub sample_every: u64,
+}
+
+fn syntax(file: &str, e: impl std::fmt::Display) -> ScenarioError {
+    ScenarioError::Syntax { file: file.to_string(), message: e.to_string().trim_end().to_string() }
+}
+
+/// Reads, overrides (`key=value`, dotted keys) and validates a scenario file.
+pub fn load(path: &Path, sets: &[String]) -> Result<Scenario, ScenarioError> {
+    let file = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Read { file: file.clone(), source })?;
+    let mut s = load_str(&text, &file, sets)?;
+    if let Scenario::Stretching(st) = &mut s {
+        st.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        if let Some(m) = &st.membrane.mesh_file {
+            let full = st.base_dir.join(m);
+            if !full.exists() {
+                return Err(ScenarioError::Value {
+                    file,
+                    key: "membrane.mesh_file".into(),
+                    value: format!("{:?}", m.display().to_string()),
+                    allowed: format!("an existing mesh file ({} does not exist)", full.display()),
+                });
+            }
+        }
+    }
+    Ok(s)
+}
+
+/// As [`load`], from text; `file` names it in messages.
+pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, ScenarioError> {
+    let mut table: toml::Table = text.parse().map_err(|e| syntax(file, e))?;
+    for a in sets {
+        apply_set(&mut table, a)?;
+    }
+    let version = match table.get("format_version") {
+        None => return Err(ScenarioError::Missing { file: file.into(), key: "format_version".into(), what: format!("the file format version, {FORMAT_VERSION} for this build") }),
+        Some(v) => v.as_integer(),
+    };
+    if version != Some(FORMAT_VERSION as i64) {
+        return Err(ScenarioError::Value {
+            file: file.into(),
+            key: "format_version".into(),
+            value: table["format_version"].to_string(),
+            allowed: format!("{FORMAT_VERSION} (the only version this build reads)"),
+        });
+    }
+    let kind = match table.get("kind").and_then(|k| k.as_str()) {
+        Some(k) => k.to_string(),
+        None => return Err(ScenarioError::Missing { file: file.into(), key: "kind".into(), what: "one of \"stretching\", \"dpd-fluid\"".into() }),
+    };
+    let value = toml::Value::Table(table);
+    match kind.as_str() {
+        "stretching" => {
+            let s: StretchingScenario = value.try_into().map_err(|e| syntax(file, e))?;
+            validate_stretching(&s, file)?;
+            Ok(Scenario::Stretching(s))
+        }
+        "dpd-fluid" => {
+            let s: FluidScenario = value.try_into().map_err(|e| syntax(file, e))?;
+            validate_fluid(&s, file)?;
+            Ok(Scenario::DpdFluid(s))
+        }
+        other => Err(ScenarioError::Value { file: file.into(), key: "kind".into(), value: format!("{other:?}"), allowed: "one of \"stretching\", \"dpd-fluid\"".into() }),
+    }
+}
+
+/// Applies `a.b.c=value` to the table. The value is parsed as TOML (numbers, booleans, arrays,
+/// quoted strings); anything that does not parse is taken as a bare string.
+fn apply_set(table: &mut toml::Table, assignment: &str) -> Result<(), ScenarioError> {
+    let bad = |m: &str| ScenarioError::Override { assignment: assignment.to_string(), message: m.to_string() };
+    let (key, raw) = assignment.split_once('=').ok_or_else(|| bad("expected key=value"))?;
+    let key = key.trim();
+    if key.is_empty() || key.split('.').any(str::is_empty) {
+        return Err(bad("empty key"));
+    }
+    let value = match format!("v = {}", raw.trim()).parse::<toml::Table>() {
+        Ok(mut t) => t.remove("v").unwrap(),
+        Err(_) => toml::Value::String(raw.trim().to_string()),
+    };
+    let parts: Vec<&str> = key.split('.').collect();
+    let mut cur = table;
+    for p in &parts[..parts.len() - 1] {
+        cur = cur
+            .entry(p.to_string())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            .as_table_mut()
+            .ok_or_else(|| bad(&format!("`{p}` is not a table")))?;
+    }
+    cur.insert(parts[parts.len() - 1].to_string(), value);
+    Ok(())
+}
+
+struct Check<'a> {
+    file: &'a str,
+}
+
+impl Check<'_> {
+    fn range(&self, key: &str, v: f64, lo: f64, hi: f64, allowed: &str) -> Result<(), ScenarioError> {
+        if v.is_finite() && v >= lo && v <= hi {
+            Ok(())
+        } else {
+            Err(ScenarioError::Value { file: self.file.into(), key: key.into(), value: format!("{v}"), allowed: allowed.into() })
+        }
+    }
+    fn fail(&self, key: &str, value: impl std::fmt::Display, allowed: &str) -> ScenarioError {
+        ScenarioError::Value { file: self.file.into(), key: key.into(), value: value.to_string(), allowed: allowed.into() }
+    }
+}
+
+fn validate_membrane(m: &MembraneSection, c: &Check) -> Result<(), ScenarioError> {
+    use hemodpd_membrane::params::MIN_VERTICES;
+    if m.vertices < MIN_VERTICES as i64 || m.vertices > 2_000_000 {
+        return Err(c.fail(
+            "membrane.vertices",
+            m.vertices,
+            &format!("an integer from {MIN_VERTICES} to 2000000 (the coarse-grained model needs at least {MIN_VERTICES} vertices to mesh and represent the cell)"),
+        ));
+    }
+    c.range("membrane.temperature_k", m.temperature_k, 200.0, 400.0, "a temperature in kelvin between 200 and 400 (room temperature is 300)")?;
+    c.range("membrane.persistence_scale", m.persistence_scale, 0.1, 10.0, "a factor between 0.1 and 10 multiplying the Eq. 12 persistence length")?;
+    if let Some(p) = m.persistence_length_nm {
+        c.range("membrane.persistence_length_nm", p, 0.01, 1000.0, "a length in nm between 0.01 and 1000 (the fine model's is 7.5)")?;
+    }
+    c.range("membrane.area_constraint_n_per_m", m.area_constraint_n_per_m, 0.0, 10.0, "k_a in N/m between 0 and 10 (default 5e-3; the shear modulus is 8.3e-6)")?;
+    c.range("membrane.volume_constraint_n_per_m2", m.volume_constraint_n_per_m2, 0.0, 1e7, "k_v in N/m² between 0 and 1e7 (default 5e3)")?;
+    Ok(())
+}
+
+fn validate_stretching(s: &StretchingScenario, file: &str) -> Result<(), ScenarioError> {
+    let c = Check { file };
+    if s.kind != "stretching" {
+        return Err(c.fail("kind", &s.kind, "\"stretching\""));
+    }
+    validate_membrane(&s.membrane, &c)?;
+    let st = &s.stretching;
+    if st.forces_pn.is_empty() {
+        return Err(c.fail("stretching.forces_pn", "[]", "a non-empty list of forces in pN"));
+    }
+    for (i, &f) in st.forces_pn.iter().enumerate() {
+        c.range(&format!("stretching.forces_pn[{i}]"), f, 0.0, 500.0, "a force in pN between 0 and 500")?;
+        if i > 0 && f <= st.forces_pn[i - 1] {
+            return Err(c.fail(&format!("stretching.forces_pn[{i}]"), f, "forces in strictly increasing order (each equilibrium continues from the previous one)"));
+        }
+    }
+    c.range("stretching.end_fraction", st.end_fraction, 0.001, 0.25, "a fraction of the vertices between 0.001 and 0.25 (the paper's is 0.05)")?;
+    c.range("stretching.tolerance_pn", st.tolerance_pn, 1e-9, 1.0, "a force in pN between 1e-9 and 1")?;
+    if st.max_iterations == 0 {
+        return Err(c.fail("stretching.max_iterations", 0, "a positive integer"));
+    }
+    Ok(())
+}
+
+fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
+    let c = Check { file };
+    let f = &s.fluid;
+    c.range("fluid.density", f.density, 0.1, 30.0, "a number density between 0.1 and 30 per rc³ (standard: 3)")?;
+    c.range("fluid.cutoff", f.cutoff, 0.1, 10.0, "a cut-off between 0.1 and 10")?;
+    for (k, &l) in f.box_size.iter().enumerate() {
+        c.range(&format!("fluid.box_size[{k}]"), l, 3.0 * f.cutoff, 1e4, "a box edge of at least 3 cut-offs")?;
+    }
+    let n = f.density * f.box_size.iter().product::<f64>();
+    if n > 5e8 {
+        return Err(c.fail("fluid.box_size", format!("{:?}", f.box_size), "a box holding at most 5e8 particles at this density"));
+    }
+    c.range("fluid.a", f.a, 0.0, 1e4, "a conservative amplitude between 0 and 1e4")?;
+    c.range("fluid.gamma", f.gamma, 0.0, 1e4, "a dissipative coefficient between 0 and 1e4")?;
+    c.range("fluid.kbt", f.kbt, 1e-6, 1e3, "a thermal energy between 1e-6 and 1e3")?;
+    c.range("fluid.weight_exponent", f.weight_exponent, 0.05, 4.0, "an exponent between 0.05 and 4 (1 standard; 0.5, 0.25 for higher Schmidt number)")?;
+    let r = &s.run;
+    c.range("run.timestep", r.timestep, 1e-6, 0.2, "a time step between 1e-6 and 0.2 (standard: 0.01)")?;
+    c.range("run.lambda", r.lambda, 0.0, 1.0, "a Groot–Warren λ between 0 and 1 (0.5 standard)")?;
+    if r.steps == 0 {
+        return Err(c.fail("run.steps", 0, "a positive number of steps"));
+    }
+    if r.sample_every == 0 || r.sample_every > r.steps {
+        return Err(c.fail("run.sample_every", r.sample_every, "a positive interval no longer than run.steps"));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+format_version = 1
+kind = "stretching"
+seed = 3
+[membrane]
+vertices = 500
+[stretching]
+forces_pn = [0, 100, 200]
+"#;
+
+    #[test]
+    fn good_file_and_overrides() {
+        let s = load_str(GOOD, "good.toml", &["membrane.vertices=800".into(), "stretching.forces_pn=[0, 50]".into(), "membrane.reference=uniform".into()]).unwrap();
+        let Scenario::Stretching(s) = s else { panic!() };
+        assert_eq!(s.membrane.vertices, 800);
+        assert_eq!(s.stretching.forces_pn, vec![0.0, 50.0]);
+        assert_eq!(s.membrane.reference, ReferenceState::Uniform);
+        assert_eq!(s.membrane.temperature_k, 300.0);
+    }
+
+    #[test]
+    fn resolved_scenario_round_trips() {
+        let s = load_str(GOOD, "good.toml", &[]).unwrap();
+        let again = load_str(&s.to_toml(), "resolved.toml", &[]).unwrap();
+        assert_eq!(s.to_toml(), again.to_toml());
+    }
+}

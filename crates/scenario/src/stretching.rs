@@ -1,0 +1,203 @@
+//! The optical-tweezers stretching scenario (SPEC §2): no fluid, static equilibrium per force,
+//! diameters compared with Mills et al. (2004).
+
+use crate::file::StretchingScenario;
+use crate::mesh_cache::{self, constants_um_pn};
+use crate::{RunContext, RunError};
+use hemodpd_membrane::params::ModelParams;
+use hemodpd_membrane::stretch::{self, StretchOptions, StretchPoint};
+use hemodpd_membrane::{MembraneModel, Mesh, ReferenceState};
+use serde_json::json;
+
+/// Mills, Qie, Dao, Lim, Suresh (2004), healthy RBC (korali digitisation, see the file's first line):
+/// force pN, D_T, D_A, then error-bar ends D_T lo/hi, D_A lo/hi, µm.
+pub const MILLS_2004_CSV: &str = include_str!("../data/mills2004_stretching_korali.csv");
+
+/// One row of the Mills et al. data.
+#[derive(Clone, Copy, Debug)]
+pub struct MillsPoint {
+    pub force_pn: f64,
+    pub dt_um: f64,
+    pub da_um: f64,
+    pub dt_lo: f64,
+    pub dt_hi: f64,
+    pub da_lo: f64,
+    pub da_hi: f64,
+}
+
+/// The Mills et al. (2004) data.
+pub fn mills_2004() -> Vec<MillsPoint> {
+    MILLS_2004_CSV
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.starts_with("force"))
+        .filter_map(|l| {
+            let v: Vec<f64> = l.split(',').filter_map(|x| x.trim().parse().ok()).collect();
+            (v.len() == 7).then(|| MillsPoint { force_pn: v[0], dt_um: v[1], da_um: v[2], dt_lo: v[3], dt_hi: v[4], da_lo: v[5], da_hi: v[6] })
+        })
+        .collect()
+}
+
+/// Linear interpolation of y(x) at `at` (x increasing); None outside the range.
+pub fn interpolate(x: &[f64], y: &[f64], at: f64) -> Option<f64> {
+    if x.is_empty() || at < x[0] - 1e-9 || at > x[x.len() - 1] + 1e-9 {
+        return None;
+    }
+    let k = x.partition_point(|&v| v < at).clamp(1, x.len().max(2) - 1);
+    if x.len() == 1 {
+        return Some(y[0]);
+    }
+    let w = (at - x[k - 1]) / (x[k] - x[k - 1]);
+    Some(y[k - 1] + w * (y[k] - y[k - 1]))
+}
+
+/// Comparison of a stretching curve with Mills et al.: RMS deviations (µm) over the experimental
+/// forces inside the simulated range, and per force whether each diameter lies inside the error bars.
+pub fn compare_with_mills(force: &[f64], da: &[f64], dt: &[f64]) -> serde_json::Value {
+    let (mut sa, mut st, mut n) = (0.0, 0.0, 0usize);
+    let mut rows = Vec::new();
+    for m in mills_2004() {
+        let (Some(a), Some(t)) = (interpolate(force, da, m.force_pn), interpolate(force, dt, m.force_pn)) else { continue };
+        sa += (a - m.da_um).powi(2);
+        st += (t - m.dt_um).powi(2);
+        n += 1;
+        rows.push(json!({
+            "force_pn": m.force_pn,
+            "axial_diameter_um": a, "mills_axial_um": m.da_um, "axial_inside_error_bars": a >= m.da_lo && a <= m.da_hi,
+            "transverse_diameter_um": t, "mills_transverse_um": m.dt_um, "transverse_inside_error_bars": t >= m.dt_lo && t <= m.dt_hi,
+        }));
+    }
+    let nn = n.max(1) as f64;
+    json!({
+        "reference": "Mills et al. 2004 (korali digitisation), shared/reference/mills2004_stretching_korali.csv",
+        "points_compared": n,
+        "rms_axial_um": (sa / nn).sqrt(),
+        "rms_transverse_um": (st / nn).sqrt(),
+        "rms_both_um": ((sa + st) / (2.0 * nn)).sqrt(),
+        "per_force": rows,
+    })
+}
+
+/// Parameters of a stretching scenario (Eq. 12 p, scaled, or explicit).
+pub fn params_of(s: &StretchingScenario) -> Result<ModelParams, RunError> {
+    let m = &s.membrane;
+    let n = m.vertices as usize;
+    Ok(match m.persistence_length_nm {
+        Some(p_nm) => ModelParams::with_persistence_length(n, m.temperature_k, p_nm * 1e-9)?,
+        None => ModelParams::with_persistence_scale(n, m.temperature_k, m.persistence_scale)?,
+    })
+}
+
+/// The resting mesh (µm) of a scenario: the user's file or the cached relaxed mesh.
+pub fn mesh_of(s: &StretchingScenario) -> Result<(Mesh, serde_json::Value), RunError> {
+    match &s.membrane.mesh_file {
+        Some(f) => {
+            let path = s.base_dir.join(f);
+            let mesh = mesh_cache::user_mesh(&path)?;
+            Ok((mesh, json!({ "source": "file", "path": path })))
+        }
+        None => {
+            let (mesh, origin) = mesh_cache::relaxed_mesh(s.membrane.vertices as usize, s.seed)?;
+            Ok((mesh, json!({ "source": "generated", "origin": origin })))
+        }
+    }
+}
+
+/// Builds the membrane model of a scenario on its resting mesh, in µm/pN units.
+pub fn model_of(s: &StretchingScenario, params: &ModelParams, mesh: &Mesh) -> Result<MembraneModel, RunError> {
+    let c = constants_um_pn(params, s.membrane.area_constraint_n_per_m, s.membrane.volume_constraint_n_per_m2);
+    let topo = mesh.topology()?;
+    Ok(match s.membrane.reference {
+        ReferenceState::Uniform => MembraneModel::uniform(&topo, &c, mesh.area(), mesh.volume())?,
+        ReferenceState::StressFree => MembraneModel::stress_free(&topo, &mesh.vertices, &c)?,
+    })
+}
+
+/// Runs the stretching protocol; `observer` sees each equilibrium as it is reached.
+pub fn solve(s: &StretchingScenario, mut observer: impl FnMut(&StretchPoint)) -> Result<(Vec<StretchPoint>, serde_json::Value), RunError> {
+    let params = params_of(s)?;
+    let (mesh, mesh_info) = mesh_of(s)?;
+    let model = model_of(s, &params, &mesh)?;
+    let opts = StretchOptions {
+        forces: s.stretching.forces_pn.clone(),
+        end_fraction: s.stretching.end_fraction,
+        tolerance: s.stretching.tolerance_pn,
+        max_iterations: s.stretching.max_iterations as usize,
+    };
+    let points = stretch::stretch(&model, &mesh.vertices, &opts, &mut observer)?;
+    let quality = mesh.quality()?;
+    let info = json!({ "mesh": mesh_info, "mesh_quality": quality, "parameters": params });
+    Ok((points, info))
+}
+
+/// The scenario's run: solves, writes the shapes, returns the results object.
+pub fn run(s: &StretchingScenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
+    let t0 = std::time::Instant::now();
+    let mut shapes = crate::output::ShapeWriter::new(ctx, s.output.shapes, "shapes.h5", &crate::output::metadata_um(s))?;
+    let mut write_error = None;
+    let (points, info) = solve(s, |p| {
+        if ctx.progress {
+            eprintln!(
+                "  F = {:7.2} pN  D_A = {:6.3} µm  D_T = {:6.3} µm  ({} iterations, residual {:.1e} pN)",
+                p.force, p.axial_diameter, p.transverse_diameter, p.iterations, p.residual
+            );
+        }
+        if let Err(e) = shapes.append(p) {
+            write_error.get_or_insert(e);
+        }
+    })?;
+    if let Some(e) = write_error {
+        return Err(e);
+    }
+    let shapes_file = shapes.finish()?;
+    let force: Vec<f64> = points.iter().map(|p| p.force).collect();
+    let da: Vec<f64> = points.iter().map(|p| p.axial_diameter).collect();
+    let dt: Vec<f64> = points.iter().map(|p| p.transverse_diameter).collect();
+    Ok(json!({
+        "force_pn": force,
+        "axial_diameter_um": da,
+        "transverse_diameter_um": dt,
+        "iterations": points.iter().map(|p| p.iterations).collect::<Vec<_>>(),
+        "residual_force_pn": points.iter().map(|p| p.residual).collect::<Vec<_>>(),
+        "area_deviation": points.iter().map(|p| p.area_deviation).collect::<Vec<_>>(),
+        "volume_deviation": points.iter().map(|p| p.volume_deviation).collect::<Vec<_>>(),
+        "mills2004": compare_with_mills(&force, &da, &dt),
+        "convergence": format!("static equilibrium by L-BFGS: largest net vertex force < {} pN", s.stretching.tolerance_pn),
+        "model": info,
+        "shapes_file": shapes_file,
+        "solve_seconds": t0.elapsed().as_secs_f64(),
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mills_data_and_interpolation() {
+        let m = mills_2004();
+        assert_eq!(m.len(), 13);
+        assert_eq!(m[12].force_pn, 192.688);
+        assert_eq!(m[12].da_um, 15.261);
+        let x = [0.0, 10.0, 20.0];
+        let y = [1.0, 2.0, 4.0];
+        assert_eq!(interpolate(&x, &y, 15.0), Some(3.0));
+        assert_eq!(interpolate(&x, &y, 0.0), Some(1.0));
+        assert_eq!(interpolate(&x, &y, 20.0), Some(4.0));
+        assert_eq!(interpolate(&x, &y, 21.0), None);
+    }
+
+    #[test]
+    fn rms_against_mills_is_zero_for_mills_itself() {
+        let m = mills_2004();
+        let f: Vec<f64> = m.iter().map(|p| p.force_pn).collect();
+        let da: Vec<f64> = m.iter().map(|p| p.da_um).collect();
+        let dt: Vec<f64> = m.iter().map(|p| p.dt_um).collect();
+        let c = compare_with_mills(&f, &da, &dt);
+        assert_eq!(c["points_compared"], 13);
+        assert!(c["rms_both_um"].as_f64().unwrap() < 1e-12);
+        // shifting D_A by 0.5 µm gives an axial RMS of exactly 0.5
+        let da2: Vec<f64> = da.iter().map(|v| v + 0.5).collect();
+        let c = compare_with_mills(&f, &da2, &dt);
+        assert!((c["rms_axial_um"].as_f64().unwrap() - 0.5).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Installs the system libraries hemodpd builds against, if they are missing (Debian/Ubuntu):
+# HDF5 (the io crate links the system libhdf5) and fontconfig/freetype with a font (plots).
+set -euo pipefail
+pkgs=(libhdf5-dev pkg-config libfontconfig1-dev libfreetype-dev fonts-dejavu-core)
+missing=()
+for p in "${pkgs[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "setup: installing ${missing[*]}" >&2
+  SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+  $SUDO apt-get update -qq
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+fi
