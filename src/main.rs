@@ -112,7 +112,7 @@ fn run(path: &Path, sets: &[String], out: Option<PathBuf>, threads: Option<usize
     let wall = t0.elapsed().as_secs_f64();
     let summary = json!({
         "hemodpd_version": env!("CARGO_PKG_VERSION"),
-        "versions": hemodpd_io::versions(),
+        "versions": { "hemodpd": env!("CARGO_PKG_VERSION"), "scenario_format": hemodpd_scenario::FORMAT_VERSION, "trajectory_format": hemodpd_io::trajectory::TRAJECTORY_VERSION },
         "scenario_file": path,
         "scenario_kind": scenario.kind(),
         "scenario": scenario,
@@ -181,7 +181,16 @@ fn mesh(n: usize, output: &Path, seed: u64, no_cache: bool) -> Result<()> {
         (m, json!(o))
     };
     let files = if output.extension().is_some_and(|e| e == "h5") {
-        hemodpd_io::mesh::write_mesh_h5(output, &mesh.vertices, &mesh.triangles).with_context(|| format!("writing {}", output.display()))?;
+        // the same layout as every trajectory: the triangles once and one frame of positions
+        let meta = hemodpd_io::RunMetadata::new("mesh", format!("n = {n}\nseed = {seed}\n"), seed, hemodpd_scenario::stretching::stretching_units());
+        let write = || -> hemodpd_io::Result<()> {
+            let mut w = hemodpd_io::TrajectoryWriter::create(output, &meta)?;
+            w.write_mesh(&mesh.triangles)?;
+            w.set_membrane_reference(mesh.area(), mesh.volume())?;
+            w.append_membrane_frame(0, 0.0, &mesh.vertices, None, &[])?;
+            w.close()
+        };
+        write().with_context(|| format!("writing {}", output.display()))?;
         vec![output.to_path_buf()]
     } else {
         hemodpd_membrane::meshio::write_mesh(&mesh, output)?

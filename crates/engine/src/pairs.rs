@@ -37,44 +37,105 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
     DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
-/// Force on sorted particle i (at shifted position `pis`) from sorted particle j, with the
-/// separation, or `None` outside the cutoff.
-#[inline(always)]
-fn pair<K: PairKernel, const ONE: bool>(
-    row: &[K],
-    cl: &CellList,
-    key: u64,
-    pis: DVec3,
-    vi: DVec3,
-    idi: u32,
-    j: usize,
-) -> Option<(DVec3, DVec3)> {
-    pair_dr::<K, ONE>(row, cl, key, pis - cl.pos[j], vi, idi, j)
+/// Candidate pairs that passed the distance test: sorted index j, separation, r².
+#[derive(Default)]
+struct Hits {
+    j: Vec<u32>,
+    dr: Vec<DVec3>,
+    r2: Vec<f64>,
+    n: usize,
 }
 
-/// Same with the separation `dr = x_i − x_j` (periodic image) given.
+impl Hits {
+    /// Makes room for `m` candidates (the branch-free append writes one slot past the last hit).
+    #[inline]
+    fn reserve(&mut self, m: usize) {
+        if self.j.len() < m + 1 {
+            self.j.resize(m + 1, 0);
+            self.dr.resize(m + 1, DVec3::ZERO);
+            self.r2.resize(m + 1, 0.0);
+        }
+    }
+
+    /// Distance test of i (at `pis`) against sorted particles `a..e`, appended without a
+    /// data-dependent branch (the cutoff test is ~30% true and would mispredict a lot).
+    #[inline(always)]
+    fn scan<K: PairKernel, const ONE: bool>(
+        &mut self,
+        row: &[K],
+        cl: &CellList,
+        pis: DVec3,
+        a: usize,
+        e: usize,
+    ) {
+        let mut n = self.n;
+        let rc2_one = row[0].cutoff2();
+        for j in a..e {
+            let dr = pis - cl.pos[j];
+            let r2 = dr.length_squared();
+            let rc2 = if ONE {
+                rc2_one
+            } else {
+                row[cl.ptype[j] as usize].cutoff2()
+            };
+            self.j[n] = j as u32;
+            self.dr[n] = dr;
+            self.r2[n] = r2;
+            n += ((r2 < rc2) & (r2 > 0.0)) as usize;
+        }
+        self.n = n;
+    }
+
+    /// Same with the exactly antisymmetric separation `(x_i − x_j) − shift` (gather scheme).
+    #[inline(always)]
+    fn scan_shifted<K: PairKernel, const ONE: bool>(
+        &mut self,
+        row: &[K],
+        cl: &CellList,
+        pi: DVec3,
+        sh: DVec3,
+        a: usize,
+        e: usize,
+    ) {
+        let mut n = self.n;
+        let rc2_one = row[0].cutoff2();
+        for j in a..e {
+            let dr = (pi - cl.pos[j]) - sh;
+            let r2 = dr.length_squared();
+            let rc2 = if ONE {
+                rc2_one
+            } else {
+                row[cl.ptype[j] as usize].cutoff2()
+            };
+            self.j[n] = j as u32;
+            self.dr[n] = dr;
+            self.r2[n] = r2;
+            n += ((r2 < rc2) & (r2 > 0.0)) as usize;
+        }
+        self.n = n;
+    }
+}
+
+/// Force from the k-th hit on i.
 #[inline(always)]
-fn pair_dr<K: PairKernel, const ONE: bool>(
+fn hit_force<K: PairKernel, const ONE: bool>(
     row: &[K],
     cl: &CellList,
     key: u64,
-    dr: DVec3,
     vi: DVec3,
     idi: u32,
-    j: usize,
-) -> Option<(DVec3, DVec3)> {
-    let r2 = dr.length_squared();
-    let k = if ONE {
+    h: &Hits,
+    k: usize,
+) -> (usize, DVec3, DVec3) {
+    let j = h.j[k] as usize;
+    let dr = h.dr[k];
+    let kern = if ONE {
         row[0]
     } else {
         row[cl.ptype[j] as usize]
     };
-    if r2 < k.cutoff2() && r2 > 0.0 {
-        let xi = pair_xi(key, idi, cl.id[j]);
-        Some((dr, k.force(dr, r2, vi - cl.vel[j], xi)))
-    } else {
-        None
-    }
+    let xi = pair_xi(key, idi, cl.id[j]);
+    (j, dr, kern.force(dr, h.r2[k], vi - cl.vel[j], xi))
 }
 
 /// Computes the pair forces of the cell-sorted particles into `sf` (sorted order, overwritten)
@@ -223,6 +284,7 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
     let [nx, ny, _] = g.n;
     let mut vir = DMat3::ZERO;
     let mut nb = [(0usize, 0usize, DVec3::ZERO); 13];
+    let mut hits = Hits::default();
     for z in z0..z1 {
         for y in 0..ny {
             for x in 0..nx {
@@ -230,11 +292,14 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
                 if s0 == s1 {
                     continue;
                 }
+                let mut m = s1 - s0;
                 for (k, d) in HALF.iter().enumerate() {
                     let (c, sh) = g.neighbour(x, y, z, *d);
                     let (a, e) = cl.range(c);
                     nb[k] = (a, e, sh);
+                    m += e - a;
                 }
+                hits.reserve(m);
                 for i in s0..s1 {
                     let pi = cl.pos[i];
                     let vi = cl.vel[i];
@@ -244,26 +309,18 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
                     } else {
                         table.row(cl.ptype[i] as usize)
                     };
-                    let mut fi = DVec3::ZERO;
-                    for j in i + 1..s1 {
-                        if let Some((dr, f)) = pair::<K, ONE>(row, cl, key, pi, vi, idi, j) {
-                            fi += f;
-                            win.add(j, -f);
-                            if V {
-                                vir += outer(dr, f);
-                            }
-                        }
-                    }
+                    hits.n = 0;
+                    hits.scan::<K, ONE>(row, cl, pi, i + 1, s1);
                     for &(a, e, sh) in &nb {
-                        let pis = pi - sh;
-                        for j in a..e {
-                            if let Some((dr, f)) = pair::<K, ONE>(row, cl, key, pis, vi, idi, j) {
-                                fi += f;
-                                win.add(j, -f);
-                                if V {
-                                    vir += outer(dr, f);
-                                }
-                            }
+                        hits.scan::<K, ONE>(row, cl, pi - sh, a, e);
+                    }
+                    let mut fi = DVec3::ZERO;
+                    for k in 0..hits.n {
+                        let (j, dr, f) = hit_force::<K, ONE>(row, cl, key, vi, idi, &hits, k);
+                        fi += f;
+                        win.add(j, -f);
+                        if V {
+                            vir += outer(dr, f);
                         }
                     }
                     win.add(i, fi);
@@ -314,6 +371,7 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
     let [nx, ny, _] = g.n;
     let mut vir = DMat3::ZERO;
     let mut nb = [(0usize, 0usize, DVec3::ZERO); 27];
+    let mut hits = Hits::default();
     for y in 0..ny {
         for x in 0..nx {
             let (s0, s1) = cl.range(g.index(x, y, z));
@@ -321,16 +379,19 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
                 continue;
             }
             let mut k = 0;
+            let mut m = 0;
             for dz in -1..=1 {
                 for dy in -1..=1 {
                     for dx in -1..=1 {
                         let (c, sh) = g.neighbour(x, y, z, [dx, dy, dz]);
                         let (a, e) = cl.range(c);
                         nb[k] = (a, e, sh);
+                        m += e - a;
                         k += 1;
                     }
                 }
             }
+            hits.reserve(m);
             for i in s0..s1 {
                 let pi = cl.pos[i];
                 let vi = cl.vel[i];
@@ -340,32 +401,23 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
                 } else {
                     table.row(cl.ptype[i] as usize)
                 };
-                let mut fi = DVec3::ZERO;
+                hits.n = 0;
                 for &(a, e, sh) in &nb {
                     if sh == DVec3::ZERO {
-                        for j in a..e {
-                            // j == i gives r² = 0 and is skipped inside `pair`.
-                            if let Some((dr, f)) = pair::<K, ONE>(row, cl, key, pi, vi, idi, j) {
-                                fi += f;
-                                if V {
-                                    vir += outer(dr, f * 0.5);
-                                }
-                            }
-                        }
+                        // j == i gives r² = 0 and is skipped.
+                        hits.scan::<K, ONE>(row, cl, pi, a, e);
                     } else {
-                        // Across the boundary: dr = (x_i − x_j) − shift, which is exactly the
-                        // negative of what j computes for i (shift → −shift), so Newton's third
-                        // law holds bit for bit.
-                        for j in a..e {
-                            let dr = (pi - cl.pos[j]) - sh;
-                            if let Some((dr, f)) = pair_dr::<K, ONE>(row, cl, key, dr, vi, idi, j)
-                            {
-                                fi += f;
-                                if V {
-                                    vir += outer(dr, f * 0.5);
-                                }
-                            }
-                        }
+                        // Across the boundary: dr = (x_i − x_j) − shift is exactly the negative
+                        // of what j computes for i, so Newton's third law holds bit for bit.
+                        hits.scan_shifted::<K, ONE>(row, cl, pi, sh, a, e);
+                    }
+                }
+                let mut fi = DVec3::ZERO;
+                for k in 0..hits.n {
+                    let (_, dr, f) = hit_force::<K, ONE>(row, cl, key, vi, idi, &hits, k);
+                    fi += f;
+                    if V {
+                        vir += outer(dr, f * 0.5);
                     }
                 }
                 out[i - off] = fi;

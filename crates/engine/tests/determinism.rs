@@ -47,7 +47,7 @@ fn restart_is_bit_identical() {
         drop(b);
         let json = serde_json::to_string(&saved).unwrap();
         let restored: hemodpd_engine::SimState = serde_json::from_str(&json).unwrap();
-        assert_eq!(restored, saved);
+        assert!(restored == saved, "serde round trip changed the state");
         let mut c = Simulation::from_state(restored, ()).unwrap();
         assert_eq!(c.step_count(), 100);
         c.run(100).unwrap();

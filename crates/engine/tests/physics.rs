@@ -55,9 +55,10 @@ fn momentum_is_conserved() {
 }
 
 /// Standard fluid (ρ = 3, a = 25, γ = 4.5, kBT = 1, rc = 1, Δt = 0.01), L = 8 (1536 particles),
-/// 500 steps equilibration + 3000 steps sampled every step.
-/// * ⟨kBT⟩ within 1% of 1 (SPEC §7). Statistical SE ≈ 0.002 here; the GW integrator's Δt = 0.01
-///   bias is a few 1e-3 (see docs/engine.md table).
+/// 500 steps equilibration + 6000 steps; T sampled every step, p every 5th step.
+/// * ⟨kBT⟩ within 1% of 1 (SPEC §7). The integrator's own bias at Δt = 0.01, λ = 0.5 is
+///   +0.52 ± 0.15 % (long run, docs/engine.md); the block SE of this run is ≈ 0.002, so the
+///   margin to 1% is ≈ 2.4 SE. A tighter statistical test would need ~5× more particle-steps.
 /// * ⟨p⟩ = 23.7 (Groot–Warren Fig. 4: α = 0.092 at ρ = 3; digitised to ±0.0005 in α ⇒ ±0.11 in
 ///   p; LAMMPS gives 23.70–23.73 for this fluid). Block SE of our mean ≈ 0.03. Tolerance 0.35
 ///   (1.5%): digitisation (0.11) + 5 SE (0.15) + finite-size/Δt effects (≲ 0.1).
@@ -66,16 +67,20 @@ fn standard_fluid_temperature_and_pressure() {
     let mut sim = standard(8.0, 0.01, 2024, ForceScheme::HalfShell);
     sim.run(500).unwrap();
     let (mut ts, mut ps) = (Vec::new(), Vec::new());
-    for _ in 0..3000 {
-        let w = sim.step_with_virial().unwrap();
+    for k in 0..6000 {
+        if k % 5 == 0 {
+            let w = sim.step_with_virial().unwrap();
+            ps.push(observe::pressure(sim.particles(), sim.field(), sim.domain(), &w));
+        } else {
+            sim.step().unwrap();
+        }
         ts.push(observe::temperature(sim.particles(), sim.field()));
-        ps.push(observe::pressure(sim.particles(), sim.field(), sim.domain(), &w));
     }
     let (t, set) = observe::block_error(&ts).unwrap();
     let (p, sep) = observe::block_error(&ps).unwrap();
     eprintln!("standard fluid L=8: kBT = {t:.5} ± {set:.5}, p = {p:.4} ± {sep:.4}");
     assert!((t - 1.0).abs() < 0.01, "T = {t}");
-    assert!(set < 0.004, "T SE {set}");
+    assert!(set < 0.003, "T SE {set}");
     assert!((p - 23.7).abs() < 0.35, "p = {p} ± {sep}");
     assert!(sep < 0.1, "p SE {sep}");
 }

@@ -94,10 +94,14 @@ pub struct MembraneConstants {
     pub k_volume: f64,
 }
 
-/// Default global area constant, N/m (5 mN/m = 5000 pN/µm ≈ 600 μ0). See `docs/model.md`.
-pub const DEFAULT_K_AREA_N_PER_M: f64 = 5e-3;
-/// Default global volume constant, N/m² (5000 pN/µm²). See `docs/model.md`.
-pub const DEFAULT_K_VOLUME_N_PER_M2: f64 = 5e3;
+/// Default global area constant k_a, N/m: 2 mN/m = 2000 pN/µm ≈ 240 μ0. With it the N = 500
+/// cell keeps its area within 0.25 % at 200 pN stretching and 0.015 % at rest, while the
+/// rank-one stiffness it adds, k_a|∇A|²/A0 ≈ 0.2 k_a at N = 500 (∝ 1/N), stays a few times the
+/// membrane's own largest Hessian eigenvalue (130 pN/µm). See docs/model.md.
+pub const DEFAULT_K_AREA_N_PER_M: f64 = 2e-3;
+/// Default global volume constant k_v, N/m² (= J/m³): 1000 pN/µm². Volume within 0.1 % at
+/// 200 pN and 0.03 % at rest (N = 500); adds k_v|∇V|²/V0 ≈ 0.38 k_v to the stiffness.
+pub const DEFAULT_K_VOLUME_N_PER_M2: f64 = 1e3;
 
 impl MembraneConstants {
     /// Converts the SI [`ModelParams`] into constants in the caller's units: one length unit is

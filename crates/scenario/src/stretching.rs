@@ -7,6 +7,7 @@ use crate::{RunContext, RunError};
 use hemodpd_membrane::params::ModelParams;
 use hemodpd_membrane::stretch::{self, StretchOptions, StretchPoint};
 use hemodpd_membrane::{MembraneModel, Mesh, ReferenceState};
+use hemodpd_io::{FrameScalar, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
 use serde_json::json;
 
 /// Mills, Qie, Dao, Lim, Suresh (2004), healthy RBC (korali digitisation, see the file's first line):
@@ -112,43 +113,85 @@ pub fn model_of(s: &StretchingScenario, params: &ModelParams, mesh: &Mesh) -> Re
     })
 }
 
-/// Runs the stretching protocol; `observer` sees each equilibrium as it is reached.
-pub fn solve(s: &StretchingScenario, mut observer: impl FnMut(&StretchPoint)) -> Result<(Vec<StretchPoint>, serde_json::Value), RunError> {
+/// A stretching scenario ready to solve: parameters, resting mesh (µm) and model.
+pub struct Prepared {
+    pub params: ModelParams,
+    pub mesh: Mesh,
+    pub model: MembraneModel,
+    /// Where the mesh came from, its quality and the parameters (for `summary.json`).
+    pub info: serde_json::Value,
+}
+
+/// Builds the parameters, the resting mesh and the model of a scenario.
+pub fn prepare(s: &StretchingScenario) -> Result<Prepared, RunError> {
     let params = params_of(s)?;
     let (mesh, mesh_info) = mesh_of(s)?;
     let model = model_of(s, &params, &mesh)?;
+    let quality = mesh.quality()?;
+    let mut info = json!({ "mesh": mesh_info, "mesh_quality": quality, "parameters": params, "reference": s.membrane.reference });
+    if s.membrane.reference == ReferenceState::StressFree {
+        info["persistence_ratio_distribution"] = json!(model.persistence_ratio_distribution());
+    }
+    Ok(Prepared { params, mesh, model, info })
+}
+
+/// Runs the stretching protocol; `observer` sees each equilibrium as it is reached.
+pub fn solve(s: &StretchingScenario, p: &Prepared, observer: impl FnMut(&StretchPoint)) -> Result<Vec<StretchPoint>, RunError> {
     let opts = StretchOptions {
         forces: s.stretching.forces_pn.clone(),
         end_fraction: s.stretching.end_fraction,
         tolerance: s.stretching.tolerance_pn,
         max_iterations: s.stretching.max_iterations as usize,
     };
-    let points = stretch::stretch(&model, &mesh.vertices, &opts, &mut observer)?;
-    let quality = mesh.quality()?;
-    let info = json!({ "mesh": mesh_info, "mesh_quality": quality, "parameters": params });
-    Ok((points, info))
+    Ok(stretch::stretch(&p.model, &p.mesh.vertices, &opts, observer)?)
 }
 
 /// The scenario's run: solves, writes the shapes, returns the results object.
 pub fn run(s: &StretchingScenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let t0 = std::time::Instant::now();
-    let mut shapes = crate::output::ShapeWriter::new(ctx, s.output.shapes, "shapes.h5", &crate::output::metadata_um(s))?;
+    let prepared = prepare(s)?;
+    let mut shapes = if s.output.shapes {
+        let meta = RunMetadata::new("stretching", toml::to_string(s).unwrap_or_default(), s.seed, stretching_units());
+        let mut w = TrajectoryWriter::create(ctx.out_dir.join("shapes.h5"), &meta).map_err(out_err)?;
+        w.write_mesh(&prepared.mesh.triangles).map_err(out_err)?;
+        w.set_membrane_reference(prepared.model.area0(), prepared.model.volume0()).map_err(out_err)?;
+        Some(w)
+    } else {
+        None
+    };
     let mut write_error = None;
-    let (points, info) = solve(s, |p| {
+    let mut frame = 0u64;
+    let points = solve(s, &prepared, |p| {
         if ctx.progress {
             eprintln!(
                 "  F = {:7.2} pN  D_A = {:6.3} µm  D_T = {:6.3} µm  ({} iterations, residual {:.1e} pN)",
                 p.force, p.axial_diameter, p.transverse_diameter, p.iterations, p.residual
             );
         }
-        if let Err(e) = shapes.append(p) {
-            write_error.get_or_insert(e);
+        if let Some(w) = shapes.as_mut() {
+            let scalars = [
+                FrameScalar { name: "force", value: p.force, quantity: Quantity::Force },
+                FrameScalar { name: "axial_diameter", value: p.axial_diameter, quantity: Quantity::Length },
+                FrameScalar { name: "transverse_diameter", value: p.transverse_diameter, quantity: Quantity::Length },
+            ];
+            // one frame per force: step = time = the frame's index; the force is the scalar "force"
+            if let Err(e) = w.append_membrane_frame(frame, frame as f64, &p.positions, None, &scalars) {
+                write_error.get_or_insert(e);
+            }
+            frame += 1;
         }
     })?;
     if let Some(e) = write_error {
-        return Err(e);
+        return Err(out_err(e));
     }
-    let shapes_file = shapes.finish()?;
+    let shapes_file = match shapes {
+        Some(w) => {
+            let path = w.path().to_path_buf();
+            w.close().map_err(out_err)?;
+            Some(path)
+        }
+        None => None,
+    };
     let force: Vec<f64> = points.iter().map(|p| p.force).collect();
     let da: Vec<f64> = points.iter().map(|p| p.axial_diameter).collect();
     let dt: Vec<f64> = points.iter().map(|p| p.transverse_diameter).collect();
@@ -162,10 +205,20 @@ pub fn run(s: &StretchingScenario, ctx: &RunContext) -> Result<serde_json::Value
         "volume_deviation": points.iter().map(|p| p.volume_deviation).collect::<Vec<_>>(),
         "mills2004": compare_with_mills(&force, &da, &dt),
         "convergence": format!("static equilibrium by L-BFGS: largest net vertex force < {} pN", s.stretching.tolerance_pn),
-        "model": info,
+        "model": prepared.info,
         "shapes_file": shapes_file,
         "solve_seconds": t0.elapsed().as_secs_f64(),
     }))
+}
+
+/// The stretching run's units: lengths in µm, energies in pN·µm (so forces in pN); the
+/// trajectory converts to SI. Frames are static equilibria: their time is the frame index.
+pub fn stretching_units() -> UnitSystem {
+    UnitSystem { length_m: 1e-6, time_s: 1.0, energy_j: 1e-18, label: "um, pN*um (forces in pN); static frames: time = frame index, force in /membrane/scalars/force".into() }
+}
+
+fn out_err(e: hemodpd_io::IoError) -> RunError {
+    RunError::Output(e.to_string())
 }
 
 #[cfg(test)]

@@ -655,7 +655,9 @@ fn moduli_of_prestressed_patches() {
 fn ka_kv_choice_under_stretching() {
     let Some((topo, x, _, _)) = golden() else { return };
     let params = ModelParams::coarse_grained(500, 300.0).unwrap();
-    for (ka, kv) in [(1e-3, 1e3), (5e-3, 5e3), (5e-3, 1e3), (2e-2, 2e4)] {
+    let (d_a, d_t) = crate::stretch::diameters(&x);
+    println!("rest mesh: D_A {d_a:.3} D_T {d_t:.3} um");
+    for (ka, kv) in [(1e-3, 1e3), (DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2), (5e-3, 5e3)] {
         let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, ka, kv);
         for reference in [ReferenceState::StressFree, ReferenceState::Uniform] {
             let model = MembraneModel::new(&topo, &x, &c, reference).unwrap();
@@ -675,5 +677,98 @@ fn ka_kv_choice_under_stretching() {
             }
             println!("  ({:.1} s)", t.elapsed().as_secs_f64());
         }
+    }
+}
+
+/// Largest eigenvalue of the Hessian of F at rest (power iteration on finite differences of
+/// the forces), with and without the global area/volume terms, and |∇A|², |∇V|²: how much the
+/// global constraints stiffen the system (explicit time steps scale as 1/√λ_max).
+#[test]
+#[ignore]
+fn hessian_stiffness_of_constraints() {
+    let Some((topo, x, _, _)) = golden() else { return };
+    let params = ModelParams::coarse_grained(500, 300.0).unwrap();
+    let lam_max = |model: &MembraneModel| {
+        let n = x.len();
+        let mut v: Vec<DVec3> = (0..n).map(|i| DVec3::new((i as f64).sin(), (i as f64 * 1.3).cos(), 0.3)).collect();
+        let mut lam = 0.0;
+        let h = 1e-6;
+        for _ in 0..3000 {
+            let norm = v.iter().map(|a| a.length_squared()).sum::<f64>().sqrt();
+            v.iter_mut().for_each(|a| *a /= norm);
+            let xp: Vec<DVec3> = x.iter().zip(&v).map(|(a, b)| *a + *b * h).collect();
+            let xm: Vec<DVec3> = x.iter().zip(&v).map(|(a, b)| *a - *b * h).collect();
+            let (fp, _) = forces(model, &xp, TermSet::ALL);
+            let (fm, _) = forces(model, &xm, TermSet::ALL);
+            let hv: Vec<DVec3> = fp.iter().zip(&fm).map(|(a, b)| -(*a - *b) / (2.0 * h)).collect();
+            lam = hv.iter().zip(&v).map(|(a, b)| a.dot(*b)).sum::<f64>();
+            v = hv;
+        }
+        lam
+    };
+    for (ka, kv) in [(0.0, 0.0), (1e-3, 1e3), (DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2), (5e-3, 5e3)] {
+        let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, ka, kv);
+        let model = MembraneModel::stress_free(&topo, &x, &c).unwrap();
+        println!("k_a {:.0} pN/um, k_v {:.0} pN/um^2: lambda_max = {:.2} pN/um", c.k_area, c.k_volume, lam_max(&model));
+    }
+    let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, 1e-3, 1e3);
+    let model = MembraneModel::stress_free(&topo, &x, &c).unwrap();
+    // |∇A|² and |∇V|² from the kernels
+    let (mut ga, mut gv) = (vec![DVec3::ZERO; x.len()], vec![DVec3::ZERO; x.len()]);
+    for t in &topo.triangles {
+        let [a, b, cc] = t.map(|v| x[v as usize]);
+        let n = (b - a).cross(cc - a);
+        let g = kernels::area_gradient(n.normalize(), a, b, cc);
+        for k in 0..3 {
+            ga[t[k] as usize] += g[k];
+        }
+        gv[t[0] as usize] += b.cross(cc) / 6.0;
+        gv[t[1] as usize] += cc.cross(a) / 6.0;
+        gv[t[2] as usize] += a.cross(b) / 6.0;
+    }
+    let na: f64 = ga.iter().map(|v| v.length_squared()).sum();
+    let nv: f64 = gv.iter().map(|v| v.length_squared()).sum();
+    println!(
+        "|grad A|^2 = {na:.3} um^2, |grad V|^2 = {nv:.3} um^4: rank-one stiffness k_a|grad A|^2/A0 = {:.3e} k_a, k_v|grad V|^2/V0 = {:.3e} k_v",
+        na / model.area0(),
+        nv / model.volume0()
+    );
+}
+
+/// Time per `add_forces` call (`cargo test -p hemodpd-membrane --lib timing -- --ignored --nocapture`).
+#[test]
+#[ignore]
+fn timing_add_forces() {
+    let c = constants_um(500, DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2);
+    for level in [2usize, 3, 4, 5, 6] {
+        let mesh = icosphere(level, 1.0);
+        let topo = mesh.topology().unwrap();
+        let mean = {
+            let l = &topo.links[0];
+            (mesh.vertices[l[0] as usize] - mesh.vertices[l[1] as usize]).length()
+        };
+        let x: Vec<DVec3> = mesh.vertices.iter().map(|p| *p * (c.l0 / mean)).collect();
+        let model = MembraneModel::stress_free(&topo, &x, &c).unwrap();
+        let mut rng = Rng(1);
+        let y: Vec<DVec3> = x.iter().map(|p| *p + 0.02 * c.l0 * rng.vec()).collect();
+        let mut f = vec![DVec3::ZERO; x.len()];
+        let reps = (2_000_000 / x.len()).max(5);
+        let t = std::time::Instant::now();
+        for _ in 0..reps {
+            model.add_forces(&y, &mut f).unwrap();
+        }
+        let dt = t.elapsed().as_secs_f64() / reps as f64;
+        let t = std::time::Instant::now();
+        for _ in 0..reps {
+            std::hint::black_box(model.energy(&y).unwrap());
+        }
+        let de = t.elapsed().as_secs_f64() / reps as f64;
+        println!(
+            "N = {:6}: add_forces {:8.1} us ({:.0} ns/vertex), energy {:8.1} us",
+            x.len(),
+            dt * 1e6,
+            dt * 1e9 / x.len() as f64,
+            de * 1e6
+        );
     }
 }

@@ -1,0 +1,68 @@
+//! The `hemodpd` command line: params, mesh, run -> summary.json.
+
+use std::process::Command;
+
+fn hemodpd(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_hemodpd")).args(args).output().unwrap()
+}
+
+/// `params --json` carries the documented keys, with Table I's values for N = 500 and the
+/// N-independent moduli of Eqs. 10–11 (8.303 µN/m, 16.61 µN/m, Y = 22.14 µN/m).
+#[test]
+fn params_json() {
+    let out = hemodpd(&["params", "--n", "500", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in [
+        "n", "l0_m", "lmax_m", "persistence_length_m", "c_j_m2", "theta0_deg", "k_bend_j", "shear_modulus_n_per_m",
+        "area_modulus_n_per_m", "young_modulus_n_per_m", "area0_m2", "volume0_m3",
+    ] {
+        assert!(j[key].is_number(), "missing {key}");
+    }
+    let get = |k: &str| j[k].as_f64().unwrap();
+    assert!((get("l0_m") - 5.18e-7).abs() < 1e-9);
+    assert!((get("persistence_length_m") - 1.08e-9).abs() < 1e-11);
+    assert!((get("theta0_deg") - 6.90).abs() < 0.01);
+    assert!((get("shear_modulus_n_per_m") / 8.3030e-6 - 1.0).abs() < 1e-4);
+    assert!((get("young_modulus_n_per_m") / 2.2141e-5 - 1.0).abs() < 1e-4);
+    // Evans–Fung with the corrected c0: 134.1 µm², 94.09 µm³
+    assert!((get("area0_m2") / 134.1e-12 - 1.0).abs() < 5e-4);
+    assert!((get("volume0_m3") / 94.09e-18 - 1.0).abs() < 1e-4);
+    let bad = hemodpd(&["params", "--n", "50"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("n = 50"));
+}
+
+/// `mesh` writes a closed mesh that reads back with the requested vertex count.
+#[test]
+fn mesh_command_writes_a_readable_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let off = dir.path().join("cell.off");
+    let out = hemodpd(&["mesh", "--n", "300", "--seed", "4", "-o", off.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let m = hemodpd_membrane::meshio::read_mesh(&off).unwrap();
+    assert_eq!(m.vertices.len(), 300);
+    let q: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(q["quality"]["min_angle_deg"].as_f64().unwrap() > 30.0);
+}
+
+/// `run` writes summary.json with the resolved scenario, the seed, versions, wall time and the
+/// stretching results (force, D_A, D_T arrays and the RMS deviation from Mills), and the shapes file.
+#[test]
+fn run_writes_summary_json() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/stretching.toml");
+    let out = hemodpd(&["run", scenario, "--set", "stretching.forces_pn=[0.0, 100.0]", "--out", dir.path().to_str().unwrap(), "--quiet", "--threads", "1"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap()).unwrap();
+    assert_eq!(j["seed"], 1);
+    assert_eq!(j["scenario"]["membrane"]["vertices"], 500);
+    assert!(j["wall_time_s"].as_f64().unwrap() > 0.0);
+    assert!(j["scenario_toml"].as_str().unwrap().contains("forces_pn = [0.0, 100.0]"));
+    let r = &j["results"];
+    assert_eq!(r["force_pn"].as_array().unwrap().len(), 2);
+    let da = r["axial_diameter_um"][1].as_f64().unwrap();
+    assert!(da > 11.5 && da < 14.5, "D_A(100 pN) = {da}");
+    assert!(r["mills2004"]["rms_axial_um"].as_f64().unwrap() >= 0.0);
+    assert!(dir.path().join("shapes.h5").exists() && dir.path().join("shapes.xmf").exists());
+}

@@ -1,0 +1,79 @@
+//! The optical-tweezers stretching scenario at N = 500 against Mills et al. (2004), plus
+//! reproducibility and the area/volume constraints. Seconds at the test profile (opt-level 3).
+
+use hemodpd_scenario::stretching::{self, mills_2004};
+use hemodpd_scenario::Scenario;
+
+fn scenario(sets: &[&str]) -> hemodpd_scenario::file::StretchingScenario {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/stretching.toml");
+    let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+    match hemodpd_scenario::load(&path, &sets).unwrap() {
+        Scenario::Stretching(s) => s,
+        _ => unreachable!(),
+    }
+}
+
+/// D_A and D_T at 0, 68, 131 and 193 pN (N = 500, shipped defaults).
+///
+/// Tolerances: Mills' error bars (half-widths 0.6–2.4 µm) are the experimental cell-to-cell
+/// scatter. The model must lie inside them for D_A at every force and for D_T at rest and at
+/// the largest forces. At 193 pN D_A must also lie between the Mills (15.26 µm) and Suresh 2005
+/// (16.24 µm) means — two independent experiments — widened by 0.2 µm, the spread of D_A between
+/// mesh seeds that we measured (docs/validation.md). D_T at middle forces is known to lie above
+/// Mills' bars for a faithful implementation (SPEC §7): it is reported, not asserted.
+#[test]
+fn n500_matches_mills_2004() {
+    let s = scenario(&["stretching.forces_pn=[0.0, 67.964, 130.513, 192.688]"]);
+    let prepared = stretching::prepare(&s).unwrap();
+    let points = stretching::solve(&s, &prepared, |_| {}).unwrap();
+    let mills = mills_2004();
+    for p in &points {
+        let m = mills.iter().find(|m| (m.force_pn - p.force).abs() < 1e-9).unwrap();
+        eprintln!(
+            "F = {:7.3} pN: D_A = {:.3} (Mills {:.2} [{:.2}, {:.2}])  D_T = {:.3} (Mills {:.2} [{:.2}, {:.2}])",
+            p.force, p.axial_diameter, m.da_um, m.da_lo, m.da_hi, p.transverse_diameter, m.dt_um, m.dt_lo, m.dt_hi
+        );
+        assert!(p.axial_diameter > m.da_lo && p.axial_diameter < m.da_hi, "D_A at {} pN outside Mills' error bars", p.force);
+        if p.force == 0.0 || p.force > 130.0 {
+            assert!(p.transverse_diameter > m.dt_lo && p.transverse_diameter < m.dt_hi, "D_T at {} pN outside Mills' error bars", p.force);
+        }
+    }
+    let top = points.last().unwrap();
+    assert!(top.axial_diameter > 15.26 - 0.2 && top.axial_diameter < 16.24 + 0.2, "D_A(193 pN) = {}", top.axial_diameter);
+    // the cell stretches monotonically
+    for w in points.windows(2) {
+        assert!(w[1].axial_diameter > w[0].axial_diameter && w[1].transverse_diameter < w[0].transverse_diameter);
+    }
+}
+
+/// Area and volume: within 0.1 % when the cell is left alone, within 1 % at 200 pN (the
+/// global constraints' job; k_a and k_v in docs/model.md).
+#[test]
+fn area_and_volume_are_held() {
+    let s = scenario(&["stretching.forces_pn=[0.0, 200.0]"]);
+    let prepared = stretching::prepare(&s).unwrap();
+    let points = stretching::solve(&s, &prepared, |_| {}).unwrap();
+    let rest = &points[0];
+    assert!(rest.area_deviation.abs() < 1e-3 && rest.volume_deviation.abs() < 1e-3, "rest: {} {}", rest.area_deviation, rest.volume_deviation);
+    let top = &points[1];
+    assert!(top.area_deviation.abs() < 1e-2 && top.volume_deviation.abs() < 1e-2, "200 pN: {} {}", top.area_deviation, top.volume_deviation);
+}
+
+/// Same scenario and seed: the generated mesh and the stretched shapes are bit-identical
+/// (mesh generated twice, without the cache); another seed gives another mesh.
+#[test]
+fn same_seed_same_result() {
+    let a = hemodpd_scenario::mesh_cache::generate(500, 11).unwrap().0;
+    let b = hemodpd_scenario::mesh_cache::generate(500, 11).unwrap().0;
+    let c = hemodpd_scenario::mesh_cache::generate(500, 12).unwrap().0;
+    assert_eq!(a, b);
+    assert_ne!(a.vertices, c.vertices);
+    let s = scenario(&["stretching.forces_pn=[0.0, 100.0]"]);
+    let p1 = stretching::prepare(&s).unwrap();
+    let r1 = stretching::solve(&s, &p1, |_| {}).unwrap();
+    let p2 = stretching::prepare(&s).unwrap();
+    let r2 = stretching::solve(&s, &p2, |_| {}).unwrap();
+    for (x, y) in r1.iter().zip(&r2) {
+        assert_eq!(x.positions, y.positions);
+    }
+}
