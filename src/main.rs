@@ -9,7 +9,11 @@ use serde_json::json;
 use std::path::{Path, PathBuf};
 
 #[derive(Parser)]
-#[command(name = "hemodpd", version, about = "Red blood cells in dissipative particle dynamics flow (Pivkin & Karniadakis 2008 model)")]
+#[command(
+    name = "hemodpd",
+    version,
+    about = "Red blood cells in dissipative particle dynamics flow (Pivkin & Karniadakis 2008 model)"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -52,6 +56,49 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Run a scenario for every combination of values: --vary membrane.vertices=100,500,5000.
+    /// Each run goes to DIR/<key=value,...>/; DIR/sweep.json lists them.
+    Sweep {
+        scenario: PathBuf,
+        /// KEY=V1,V2,... (repeatable: the runs are the cartesian product).
+        #[arg(long = "vary", value_name = "KEY=V1,V2,...", required = true)]
+        vary: Vec<String>,
+        /// Override a key in every run (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
+        /// Output directory (default: runs/<scenario name>-sweep).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        #[arg(long)]
+        threads: Option<usize>,
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Plot stretching curves (D_A, D_T vs force) of runs or sweeps against Mills et al. 2004.
+    Plot {
+        /// Run directories (with summary.json) or sweep.json files.
+        inputs: Vec<PathBuf>,
+        /// Output PNG.
+        #[arg(short = 'o', long)]
+        output: PathBuf,
+        #[arg(long, default_value = "RBC stretching")]
+        title: String,
+    },
+    /// Render membrane shapes from a trajectory (e.g. shapes.h5) as a PNG.
+    Render {
+        trajectory: PathBuf,
+        /// Frame indices (default: all).
+        #[arg(long, value_delimiter = ',')]
+        frames: Vec<usize>,
+        /// Panels per row.
+        #[arg(long, default_value_t = 3)]
+        columns: usize,
+        /// Draw the triangulation.
+        #[arg(long)]
+        edges: bool,
+        #[arg(short = 'o', long)]
+        output: PathBuf,
+    },
     /// Generate the relaxed Evans–Fung mesh with N vertices and write it (OFF, PLY or CSV by extension; µm).
     Mesh {
         #[arg(long)]
@@ -78,7 +125,13 @@ fn main() {
 
 fn dispatch(cli: Cli) -> Result<()> {
     match cli.command {
-        Command::Run { scenario, sets, out, threads, quiet } => run(&scenario, &sets, out, threads, quiet),
+        Command::Run {
+            scenario,
+            sets,
+            out,
+            threads,
+            quiet,
+        } => run(&scenario, &sets, out, threads, quiet),
         Command::Check { scenarios, sets } => {
             if scenarios.is_empty() {
                 bail!("no scenario files given");
@@ -89,26 +142,94 @@ fn dispatch(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Params { n, temperature_k, json } => params(n, temperature_k, json),
-        Command::Mesh { n, output, seed, no_cache } => mesh(n, &output, seed, no_cache),
+        Command::Params {
+            n,
+            temperature_k,
+            json,
+        } => params(n, temperature_k, json),
+        Command::Sweep {
+            scenario,
+            vary,
+            sets,
+            out,
+            threads,
+            quiet,
+        } => sweep(&scenario, &vary, &sets, out, threads, quiet),
+        Command::Plot {
+            inputs,
+            output,
+            title,
+        } => plot(&inputs, &output, &title),
+        Command::Render {
+            trajectory,
+            frames,
+            columns,
+            edges,
+            output,
+        } => render(&trajectory, &frames, columns, edges, &output),
+        Command::Mesh {
+            n,
+            output,
+            seed,
+            no_cache,
+        } => mesh(n, &output, seed, no_cache),
     }
 }
 
-fn run(path: &Path, sets: &[String], out: Option<PathBuf>, threads: Option<usize>, quiet: bool) -> Result<()> {
+fn run(
+    path: &Path,
+    sets: &[String],
+    out: Option<PathBuf>,
+    threads: Option<usize>,
+    quiet: bool,
+) -> Result<()> {
+    run_one(path, sets, out, threads, quiet).map(|_| ())
+}
+
+/// Runs one scenario and writes its summary; returns the summary.
+fn run_one(
+    path: &Path,
+    sets: &[String],
+    out: Option<PathBuf>,
+    threads: Option<usize>,
+    quiet: bool,
+) -> Result<serde_json::Value> {
     let scenario = hemodpd_scenario::load(path, sets)?;
-    let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+    let threads = threads.unwrap_or_else(|| {
+        std::thread::available_parallelism()
+            .map(|n| n.get())
+            .unwrap_or(1)
+    });
     if threads == 0 {
         bail!("--threads must be at least 1");
     }
-    let stem = path.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_else(|| "run".into());
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "run".into());
     let out_dir = out.unwrap_or_else(|| PathBuf::from("runs").join(stem));
-    let ctx = RunContext { out_dir: out_dir.clone(), threads, progress: !quiet };
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting the thread pool")?;
+    let ctx = RunContext {
+        out_dir: out_dir.clone(),
+        threads,
+        progress: !quiet,
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("starting the thread pool")?;
     if !quiet {
-        eprintln!("hemodpd {}: {} scenario {} -> {}", env!("CARGO_PKG_VERSION"), scenario.kind(), path.display(), out_dir.display());
+        eprintln!(
+            "hemodpd {}: {} scenario {} -> {}",
+            env!("CARGO_PKG_VERSION"),
+            scenario.kind(),
+            path.display(),
+            out_dir.display()
+        );
     }
     let t0 = std::time::Instant::now();
-    let results = pool.install(|| hemodpd_scenario::run(&scenario, &ctx)).with_context(|| format!("running {}", path.display()))?;
+    let results = pool
+        .install(|| hemodpd_scenario::run(&scenario, &ctx))
+        .with_context(|| format!("running {}", path.display()))?;
     let wall = t0.elapsed().as_secs_f64();
     let summary = json!({
         "hemodpd_version": env!("CARGO_PKG_VERSION"),
@@ -125,8 +246,218 @@ fn run(path: &Path, sets: &[String], out: Option<PathBuf>, threads: Option<usize
     });
     hemodpd_io::summary::write_summary_json(&out_dir, &summary).context("writing summary.json")?;
     if !quiet {
-        eprintln!("done in {wall:.2} s; summary: {}", out_dir.join("summary.json").display());
+        eprintln!(
+            "done in {wall:.2} s; summary: {}",
+            out_dir.join("summary.json").display()
+        );
     }
+    Ok(summary)
+}
+
+fn sweep(
+    path: &Path,
+    vary: &[String],
+    sets: &[String],
+    out: Option<PathBuf>,
+    threads: Option<usize>,
+    quiet: bool,
+) -> Result<()> {
+    // axes: (key, values)
+    let mut axes = Vec::new();
+    for v in vary {
+        let (key, values) = v
+            .split_once('=')
+            .with_context(|| format!("--vary {v}: expected KEY=V1,V2,..."))?;
+        let values: Vec<String> = split_values(values);
+        if values.is_empty() {
+            bail!("--vary {v}: no values");
+        }
+        axes.push((key.trim().to_string(), values));
+    }
+    let mut combos: Vec<Vec<(String, String)>> = vec![vec![]];
+    for (key, values) in &axes {
+        combos = combos
+            .iter()
+            .flat_map(|c| {
+                values
+                    .iter()
+                    .map(move |v| [c.clone(), vec![(key.clone(), v.clone())]].concat())
+            })
+            .collect();
+    }
+    // validate every variant before running any
+    for combo in &combos {
+        let all: Vec<String> = sets
+            .iter()
+            .cloned()
+            .chain(combo.iter().map(|(k, v)| format!("{k}={v}")))
+            .collect();
+        hemodpd_scenario::load(path, &all)?;
+    }
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "run".into());
+    let out_dir = out.unwrap_or_else(|| PathBuf::from("runs").join(format!("{stem}-sweep")));
+    let mut runs = Vec::new();
+    for (i, combo) in combos.iter().enumerate() {
+        let label = combo
+            .iter()
+            .map(|(k, v)| format!("{k}={v}"))
+            .collect::<Vec<_>>()
+            .join(",");
+        let dir = out_dir.join(label.replace(['/', ' ', '[', ']', '"'], "_"));
+        let all: Vec<String> = sets
+            .iter()
+            .cloned()
+            .chain(combo.iter().map(|(k, v)| format!("{k}={v}")))
+            .collect();
+        if !quiet {
+            eprintln!("[{}/{}] {label}", i + 1, combos.len());
+        }
+        let summary = run_one(path, &all, Some(dir.clone()), threads, quiet)?;
+        let mills = &summary["results"]["mills2004"];
+        runs.push(json!({
+            "label": label, "overrides": all, "dir": dir, "wall_time_s": summary["wall_time_s"],
+            "rms_axial_um": mills["rms_axial_um"], "rms_transverse_um": mills["rms_transverse_um"],
+        }));
+    }
+    let sweep = json!({ "scenario_file": path, "axes": axes, "runs": runs });
+    hemodpd_io::summary::write_json_atomic(out_dir.join("sweep.json"), &sweep)?;
+    println!(
+        "{:<40} {:>10} {:>12} {:>12}",
+        "run", "wall (s)", "RMS D_A", "RMS D_T"
+    );
+    for r in &runs {
+        let f = |k: &str| {
+            r[k].as_f64()
+                .map(|v| format!("{v:.3}"))
+                .unwrap_or_else(|| "-".into())
+        };
+        println!(
+            "{:<40} {:>10} {:>12} {:>12}",
+            r["label"].as_str().unwrap_or(""),
+            f("wall_time_s"),
+            f("rms_axial_um"),
+            f("rms_transverse_um")
+        );
+    }
+    Ok(())
+}
+
+/// Splits "a,b,[1, 2],c" at top-level commas.
+fn split_values(s: &str) -> Vec<String> {
+    let (mut out, mut cur, mut depth) = (Vec::new(), String::new(), 0i32);
+    for ch in s.chars() {
+        match ch {
+            '[' => depth += 1,
+            ']' => depth -= 1,
+            ',' if depth == 0 => {
+                out.push(cur.trim().to_string());
+                cur.clear();
+                continue;
+            }
+            _ => {}
+        }
+        cur.push(ch);
+    }
+    if !cur.trim().is_empty() {
+        out.push(cur.trim().to_string());
+    }
+    out
+}
+
+fn read_json(path: &Path) -> Result<serde_json::Value> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))
+}
+
+fn plot(inputs: &[PathBuf], output: &Path, title: &str) -> Result<()> {
+    use hemodpd_scenario::figures::{stretching_chart, Curve};
+    let mut curves = Vec::new();
+    for input in inputs {
+        let label_dirs: Vec<(String, PathBuf)> =
+            if input.is_file() && input.file_name().is_some_and(|n| n == "sweep.json") {
+                let sw = read_json(input)?;
+                sw["runs"]
+                    .as_array()
+                    .into_iter()
+                    .flatten()
+                    .map(|r| {
+                        (
+                            r["label"].as_str().unwrap_or("").to_string(),
+                            PathBuf::from(r["dir"].as_str().unwrap_or("")),
+                        )
+                    })
+                    .collect()
+            } else {
+                vec![(
+                    input
+                        .file_name()
+                        .map(|n| n.to_string_lossy().to_string())
+                        .unwrap_or_default(),
+                    input.clone(),
+                )]
+            };
+        for (label, dir) in label_dirs {
+            let summary = read_json(&dir.join("summary.json"))?;
+            let curve = Curve::from_summary(&label, &summary)
+                .with_context(|| format!("{}: not a stretching run", dir.display()))?;
+            curves.push(curve);
+        }
+    }
+    if curves.is_empty() {
+        bail!("no runs to plot");
+    }
+    stretching_chart(output, title, &curves)?;
+    eprintln!("wrote {}", output.display());
+    Ok(())
+}
+
+fn render(
+    trajectory: &Path,
+    frames: &[usize],
+    columns: usize,
+    edges: bool,
+    output: &Path,
+) -> Result<()> {
+    let reader = hemodpd_io::TrajectoryReader::open(trajectory)?;
+    let triangles = reader.triangles()?;
+    let n = reader.membrane_frames()?;
+    let frames: Vec<usize> = if frames.is_empty() {
+        (0..n).collect()
+    } else {
+        frames.to_vec()
+    };
+    let forces = reader.membrane_scalar("force").ok();
+    let mut data = Vec::new();
+    for &i in &frames {
+        if i >= n {
+            bail!(
+                "{}: frame {i} requested, the file has {n} frames",
+                trajectory.display()
+            );
+        }
+        let f = reader.membrane_frame(i)?;
+        let um: Vec<glam::DVec3> = f.positions.iter().map(|p| *p * 1e6).collect();
+        let title = match &forces {
+            Some(fs) => format!("{:.0} pN", fs[i] * 1e12),
+            None => format!("t = {:.4} s", f.time),
+        };
+        data.push((title, um));
+    }
+    let shapes: Vec<hemodpd_scenario::figures::Shape> = data
+        .iter()
+        .map(|(t, p)| hemodpd_scenario::figures::Shape {
+            title: t.clone(),
+            positions: p,
+            triangles: &triangles,
+        })
+        .collect();
+    hemodpd_scenario::figures::render_shapes(output, &shapes, columns, edges)
+        .map_err(|e| anyhow::anyhow!("rendering {}: {e}", output.display()))?;
+    eprintln!("wrote {}", output.display());
     Ok(())
 }
 
@@ -153,12 +484,18 @@ fn params(n: usize, temperature_k: f64, as_json: bool) -> Result<()> {
     if as_json {
         println!("{}", serde_json::to_string_pretty(&j)?);
     } else {
-        println!("Coarse-grained RBC model, N = {} vertices, T = {} K (Pivkin & Karniadakis 2008)", p.n, p.temperature_k);
+        println!(
+            "Coarse-grained RBC model, N = {} vertices, T = {} K (Pivkin & Karniadakis 2008)",
+            p.n, p.temperature_k
+        );
         println!("  kBT                 {:.6e} J", p.kbt_j);
         println!("  L0      (Eq. 8)     {:.6e} m", p.l0_m);
         println!("  Lmax    (3.17 L0)   {:.6e} m", p.lmax_m);
         println!("  p       (Eq. 12)    {:.6e} m", p.persistence_length_m);
-        println!("  C       (Eq. 4)     {:.6e} J m^2   (Table I prints ~4x this: see docs/model.md)", p.c_j_m2);
+        println!(
+            "  C       (Eq. 4)     {:.6e} J m^2   (Table I prints ~4x this: see docs/model.md)",
+            p.c_j_m2
+        );
         println!("  theta0  (Eq. 9)     {:.4} deg", p.theta0_deg);
         println!("  k_bend  (200 kBT)   {:.6e} J", p.k_bend_j);
         println!("  mu0     (Eq. 10)    {:.6e} N/m", p.shear_modulus_n_per_m);
@@ -182,7 +519,12 @@ fn mesh(n: usize, output: &Path, seed: u64, no_cache: bool) -> Result<()> {
     };
     let files = if output.extension().is_some_and(|e| e == "h5") {
         // the same layout as every trajectory: the triangles once and one frame of positions
-        let meta = hemodpd_io::RunMetadata::new("mesh", format!("n = {n}\nseed = {seed}\n"), seed, hemodpd_scenario::stretching::stretching_units());
+        let meta = hemodpd_io::RunMetadata::new(
+            "mesh",
+            format!("n = {n}\nseed = {seed}\n"),
+            seed,
+            hemodpd_scenario::stretching::stretching_units(),
+        );
         let write = || -> hemodpd_io::Result<()> {
             let mut w = hemodpd_io::TrajectoryWriter::create(output, &meta)?;
             w.write_mesh(&mesh.triangles)?;
@@ -196,7 +538,14 @@ fn mesh(n: usize, output: &Path, seed: u64, no_cache: bool) -> Result<()> {
         hemodpd_membrane::meshio::write_mesh(&mesh, output)?
     };
     let q = mesh.quality()?;
-    eprintln!("mesh N = {n}, seed {seed}: {:.2} s ({})", t0.elapsed().as_secs_f64(), origin);
-    println!("{}", serde_json::to_string_pretty(&json!({ "files": files, "quality": q }))?);
+    eprintln!(
+        "mesh N = {n}, seed {seed}: {:.2} s ({})",
+        t0.elapsed().as_secs_f64(),
+        origin
+    );
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&json!({ "files": files, "quality": q }))?
+    );
     Ok(())
 }

@@ -3,7 +3,10 @@
 use std::process::Command;
 
 fn hemodpd(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_hemodpd")).args(args).output().unwrap()
+    Command::new(env!("CARGO_BIN_EXE_hemodpd"))
+        .args(args)
+        .output()
+        .unwrap()
 }
 
 /// `params --json` carries the documented keys, with Table I's values for N = 500 and the
@@ -11,11 +14,25 @@ fn hemodpd(args: &[&str]) -> std::process::Output {
 #[test]
 fn params_json() {
     let out = hemodpd(&["params", "--n", "500", "--json"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for key in [
-        "n", "l0_m", "lmax_m", "persistence_length_m", "c_j_m2", "theta0_deg", "k_bend_j", "shear_modulus_n_per_m",
-        "area_modulus_n_per_m", "young_modulus_n_per_m", "area0_m2", "volume0_m3",
+        "n",
+        "l0_m",
+        "lmax_m",
+        "persistence_length_m",
+        "c_j_m2",
+        "theta0_deg",
+        "k_bend_j",
+        "shear_modulus_n_per_m",
+        "area_modulus_n_per_m",
+        "young_modulus_n_per_m",
+        "area0_m2",
+        "volume0_m3",
     ] {
         assert!(j[key].is_number(), "missing {key}");
     }
@@ -38,8 +55,20 @@ fn params_json() {
 fn mesh_command_writes_a_readable_mesh() {
     let dir = tempfile::tempdir().unwrap();
     let off = dir.path().join("cell.off");
-    let out = hemodpd(&["mesh", "--n", "300", "--seed", "4", "-o", off.to_str().unwrap()]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = hemodpd(&[
+        "mesh",
+        "--n",
+        "300",
+        "--seed",
+        "4",
+        "-o",
+        off.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let m = hemodpd_membrane::meshio::read_mesh(&off).unwrap();
     assert_eq!(m.vertices.len(), 300);
     let q: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -52,13 +81,32 @@ fn mesh_command_writes_a_readable_mesh() {
 fn run_writes_summary_json() {
     let dir = tempfile::tempdir().unwrap();
     let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/stretching.toml");
-    let out = hemodpd(&["run", scenario, "--set", "stretching.forces_pn=[0.0, 100.0]", "--out", dir.path().to_str().unwrap(), "--quiet", "--threads", "1"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap()).unwrap();
+    let out = hemodpd(&[
+        "run",
+        scenario,
+        "--set",
+        "stretching.forces_pn=[0.0, 100.0]",
+        "--out",
+        dir.path().to_str().unwrap(),
+        "--quiet",
+        "--threads",
+        "1",
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap())
+            .unwrap();
     assert_eq!(j["seed"], 1);
     assert_eq!(j["scenario"]["membrane"]["vertices"], 500);
     assert!(j["wall_time_s"].as_f64().unwrap() > 0.0);
-    assert!(j["scenario_toml"].as_str().unwrap().contains("forces_pn = [0.0, 100.0]"));
+    assert!(j["scenario_toml"]
+        .as_str()
+        .unwrap()
+        .contains("forces_pn = [0.0, 100.0]"));
     let r = &j["results"];
     assert_eq!(r["force_pn"].as_array().unwrap().len(), 2);
     let da = r["axial_diameter_um"][1].as_f64().unwrap();

@@ -28,21 +28,39 @@ fn n500_matches_mills_2004() {
     let points = stretching::solve(&s, &prepared, |_| {}).unwrap();
     let mills = mills_2004();
     for p in &points {
-        let m = mills.iter().find(|m| (m.force_pn - p.force).abs() < 1e-9).unwrap();
+        let m = mills
+            .iter()
+            .find(|m| (m.force_pn - p.force).abs() < 1e-9)
+            .unwrap();
         eprintln!(
             "F = {:7.3} pN: D_A = {:.3} (Mills {:.2} [{:.2}, {:.2}])  D_T = {:.3} (Mills {:.2} [{:.2}, {:.2}])",
             p.force, p.axial_diameter, m.da_um, m.da_lo, m.da_hi, p.transverse_diameter, m.dt_um, m.dt_lo, m.dt_hi
         );
-        assert!(p.axial_diameter > m.da_lo && p.axial_diameter < m.da_hi, "D_A at {} pN outside Mills' error bars", p.force);
+        assert!(
+            p.axial_diameter > m.da_lo && p.axial_diameter < m.da_hi,
+            "D_A at {} pN outside Mills' error bars",
+            p.force
+        );
         if p.force == 0.0 || p.force > 130.0 {
-            assert!(p.transverse_diameter > m.dt_lo && p.transverse_diameter < m.dt_hi, "D_T at {} pN outside Mills' error bars", p.force);
+            assert!(
+                p.transverse_diameter > m.dt_lo && p.transverse_diameter < m.dt_hi,
+                "D_T at {} pN outside Mills' error bars",
+                p.force
+            );
         }
     }
     let top = points.last().unwrap();
-    assert!(top.axial_diameter > 15.26 - 0.2 && top.axial_diameter < 16.24 + 0.2, "D_A(193 pN) = {}", top.axial_diameter);
+    assert!(
+        top.axial_diameter > 15.26 - 0.2 && top.axial_diameter < 16.24 + 0.2,
+        "D_A(193 pN) = {}",
+        top.axial_diameter
+    );
     // the cell stretches monotonically
     for w in points.windows(2) {
-        assert!(w[1].axial_diameter > w[0].axial_diameter && w[1].transverse_diameter < w[0].transverse_diameter);
+        assert!(
+            w[1].axial_diameter > w[0].axial_diameter
+                && w[1].transverse_diameter < w[0].transverse_diameter
+        );
     }
 }
 
@@ -54,9 +72,19 @@ fn area_and_volume_are_held() {
     let prepared = stretching::prepare(&s).unwrap();
     let points = stretching::solve(&s, &prepared, |_| {}).unwrap();
     let rest = &points[0];
-    assert!(rest.area_deviation.abs() < 1e-3 && rest.volume_deviation.abs() < 1e-3, "rest: {} {}", rest.area_deviation, rest.volume_deviation);
+    assert!(
+        rest.area_deviation.abs() < 1e-3 && rest.volume_deviation.abs() < 1e-3,
+        "rest: {} {}",
+        rest.area_deviation,
+        rest.volume_deviation
+    );
     let top = &points[1];
-    assert!(top.area_deviation.abs() < 1e-2 && top.volume_deviation.abs() < 1e-2, "200 pN: {} {}", top.area_deviation, top.volume_deviation);
+    assert!(
+        top.area_deviation.abs() < 1e-2 && top.volume_deviation.abs() < 1e-2,
+        "200 pN: {} {}",
+        top.area_deviation,
+        top.volume_deviation
+    );
 }
 
 /// Same scenario and seed: the generated mesh and the stretched shapes are bit-identical

@@ -37,12 +37,18 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
     DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
-/// Candidate pairs that passed the distance test: sorted index j, separation, r².
+/// A candidate pair that passed the distance test: sorted index j, separation, r².
+#[derive(Clone, Copy, Default)]
+struct Hit {
+    dr: DVec3,
+    r2: f64,
+    j: u32,
+}
+
+/// The hits of one particle i.
 #[derive(Default)]
 struct Hits {
-    j: Vec<u32>,
-    dr: Vec<DVec3>,
-    r2: Vec<f64>,
+    h: Vec<Hit>,
     n: usize,
 }
 
@@ -50,66 +56,39 @@ impl Hits {
     /// Makes room for `m` candidates (the branch-free append writes one slot past the last hit).
     #[inline]
     fn reserve(&mut self, m: usize) {
-        if self.j.len() < m + 1 {
-            self.j.resize(m + 1, 0);
-            self.dr.resize(m + 1, DVec3::ZERO);
-            self.r2.resize(m + 1, 0.0);
+        if self.h.len() < m + 1 {
+            self.h.resize(m + 1, Hit::default());
         }
     }
 
-    /// Distance test of i (at `pis`) against sorted particles `a..e`, appended without a
-    /// data-dependent branch (the cutoff test is ~30% true and would mispredict a lot).
+    /// Distance test of i against sorted particles `a..e`, appended without a data-dependent
+    /// branch (the cutoff test is ~30% true and would mispredict a lot). `sep(j)` gives
+    /// x_i − x_j for the right periodic image.
     #[inline(always)]
     fn scan<K: PairKernel, const ONE: bool>(
         &mut self,
         row: &[K],
         cl: &CellList,
-        pis: DVec3,
         a: usize,
         e: usize,
+        sep: impl Fn(DVec3) -> DVec3,
     ) {
         let mut n = self.n;
         let rc2_one = row[0].cutoff2();
-        for j in a..e {
-            let dr = pis - cl.pos[j];
+        let h = &mut self.h[..];
+        for (j, pj) in cl.pos[a..e].iter().enumerate() {
+            let dr = sep(*pj);
             let r2 = dr.length_squared();
             let rc2 = if ONE {
                 rc2_one
             } else {
-                row[cl.ptype[j] as usize].cutoff2()
+                row[cl.ptype[a + j] as usize].cutoff2()
             };
-            self.j[n] = j as u32;
-            self.dr[n] = dr;
-            self.r2[n] = r2;
-            n += ((r2 < rc2) & (r2 > 0.0)) as usize;
-        }
-        self.n = n;
-    }
-
-    /// Same with the exactly antisymmetric separation `(x_i − x_j) − shift` (gather scheme).
-    #[inline(always)]
-    fn scan_shifted<K: PairKernel, const ONE: bool>(
-        &mut self,
-        row: &[K],
-        cl: &CellList,
-        pi: DVec3,
-        sh: DVec3,
-        a: usize,
-        e: usize,
-    ) {
-        let mut n = self.n;
-        let rc2_one = row[0].cutoff2();
-        for j in a..e {
-            let dr = (pi - cl.pos[j]) - sh;
-            let r2 = dr.length_squared();
-            let rc2 = if ONE {
-                rc2_one
-            } else {
-                row[cl.ptype[j] as usize].cutoff2()
+            h[n] = Hit {
+                dr,
+                r2,
+                j: (a + j) as u32,
             };
-            self.j[n] = j as u32;
-            self.dr[n] = dr;
-            self.r2[n] = r2;
             n += ((r2 < rc2) & (r2 > 0.0)) as usize;
         }
         self.n = n;
@@ -124,18 +103,16 @@ fn hit_force<K: PairKernel, const ONE: bool>(
     key: u64,
     vi: DVec3,
     idi: u32,
-    h: &Hits,
-    k: usize,
+    h: Hit,
 ) -> (usize, DVec3, DVec3) {
-    let j = h.j[k] as usize;
-    let dr = h.dr[k];
+    let j = h.j as usize;
     let kern = if ONE {
         row[0]
     } else {
         row[cl.ptype[j] as usize]
     };
     let xi = pair_xi(key, idi, cl.id[j]);
-    (j, dr, kern.force(dr, h.r2[k], vi - cl.vel[j], xi))
+    (j, h.dr, kern.force(h.dr, h.r2, vi - cl.vel[j], xi))
 }
 
 /// Computes the pair forces of the cell-sorted particles into `sf` (sorted order, overwritten)
@@ -310,13 +287,14 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
                         table.row(cl.ptype[i] as usize)
                     };
                     hits.n = 0;
-                    hits.scan::<K, ONE>(row, cl, pi, i + 1, s1);
+                    hits.scan::<K, ONE>(row, cl, i + 1, s1, |pj| pi - pj);
                     for &(a, e, sh) in &nb {
-                        hits.scan::<K, ONE>(row, cl, pi - sh, a, e);
+                        let pis = pi - sh;
+                        hits.scan::<K, ONE>(row, cl, a, e, |pj| pis - pj);
                     }
                     let mut fi = DVec3::ZERO;
-                    for k in 0..hits.n {
-                        let (j, dr, f) = hit_force::<K, ONE>(row, cl, key, vi, idi, &hits, k);
+                    for &h in &hits.h[..hits.n] {
+                        let (j, dr, f) = hit_force::<K, ONE>(row, cl, key, vi, idi, h);
                         fi += f;
                         win.add(j, -f);
                         if V {
@@ -405,16 +383,16 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
                 for &(a, e, sh) in &nb {
                     if sh == DVec3::ZERO {
                         // j == i gives r² = 0 and is skipped.
-                        hits.scan::<K, ONE>(row, cl, pi, a, e);
+                        hits.scan::<K, ONE>(row, cl, a, e, |pj| pi - pj);
                     } else {
                         // Across the boundary: dr = (x_i − x_j) − shift is exactly the negative
                         // of what j computes for i, so Newton's third law holds bit for bit.
-                        hits.scan_shifted::<K, ONE>(row, cl, pi, sh, a, e);
+                        hits.scan::<K, ONE>(row, cl, a, e, |pj| (pi - pj) - sh);
                     }
                 }
                 let mut fi = DVec3::ZERO;
-                for k in 0..hits.n {
-                    let (_, dr, f) = hit_force::<K, ONE>(row, cl, key, vi, idi, &hits, k);
+                for &h in &hits.h[..hits.n] {
+                    let (_, dr, f) = hit_force::<K, ONE>(row, cl, key, vi, idi, h);
                     fi += f;
                     if V {
                         vir += outer(dr, f * 0.5);

@@ -272,6 +272,8 @@ pub struct MembraneModel {
     tri_amin: Vec<f64>,
     k_bend: f64,
     theta0: f64,
+    cos_theta0: f64,
+    sin_theta0: f64,
     k_area: f64,
     area0: f64,
     k_volume: f64,
@@ -308,6 +310,8 @@ impl MembraneModel {
             tri_amin: vec![DEGENERATE_AREA_FRACTION * a_ref; nt],
             k_bend: c.k_bend,
             theta0: c.theta0_rad,
+            cos_theta0: c.theta0_rad.cos(),
+            sin_theta0: c.theta0_rad.sin(),
             k_area: c.k_area,
             area0,
             k_volume: c.k_volume,
@@ -408,6 +412,8 @@ impl MembraneModel {
             tri_amin,
             k_bend: c.k_bend,
             theta0: c.theta0_rad,
+            cos_theta0: c.theta0_rad.cos(),
+            sin_theta0: c.theta0_rad.sin(),
             k_area: c.k_area,
             area0: 1.0,
             k_volume: c.k_volume,
@@ -477,9 +483,10 @@ impl MembraneModel {
         if terms.bending && self.k_bend != 0.0 {
             for (k, d) in self.dihedrals.iter().enumerate() {
                 let [a, b, c, dd] = d.map(|v| x[v as usize]);
-                let theta = kernels::dihedral_angle(a, b, c, dd)
+                let (cos_t, sin_t) = kernels::dihedral_cos_sin(a, b, c, dd)
                     .ok_or(ForceError::DegenerateDihedral { pair: k, vertices: *d })?;
-                e.bending += self.k_bend * (1.0 - (theta - self.theta0).cos());
+                // 1 − cos(θ − θ0) = 1 − cos θ cos θ0 − sin θ sin θ0
+                e.bending += self.k_bend * (1.0 - cos_t * self.cos_theta0 - sin_t * self.sin_theta0);
             }
         }
         Ok(e)
@@ -565,11 +572,11 @@ impl MembraneModel {
             for (k, d) in self.dihedrals.iter().enumerate() {
                 let idx = d.map(|v| v as usize);
                 let [a, b, c, dd] = idx.map(|v| x[v]);
-                let (theta, g) =
+                let (cos_t, sin_t, g) =
                     kernels::dihedral(a, b, c, dd).ok_or(ForceError::DegenerateDihedral { pair: k, vertices: *d })?;
-                let phi = theta - self.theta0;
-                e.bending += self.k_bend * (1.0 - phi.cos());
-                let s = -self.k_bend * phi.sin(); // −dE/dθ
+                // E = k [1 − cos(θ − θ0)], −dE/dθ = −k sin(θ − θ0) = −k (sin θ cos θ0 − cos θ sin θ0)
+                e.bending += self.k_bend * (1.0 - cos_t * self.cos_theta0 - sin_t * self.sin_theta0);
+                let s = -self.k_bend * (sin_t * self.cos_theta0 - cos_t * self.sin_theta0);
                 for j in 0..4 {
                     f[idx[j]] += g[j] * s;
                 }
@@ -655,6 +662,33 @@ impl MembraneModel {
     /// Per-triangle C_α.
     pub fn triangle_c(&self) -> &[f64] {
         &self.tri_c
+    }
+    /// Spontaneous angle θ0, radians.
+    pub fn theta0(&self) -> f64 {
+        self.theta0
+    }
+    /// Bending constant k_bend.
+    pub fn k_bend(&self) -> f64 {
+        self.k_bend
+    }
+    /// Global area constant k_a.
+    pub fn k_area(&self) -> f64 {
+        self.k_area
+    }
+    /// Global volume constant k_v.
+    pub fn k_volume(&self) -> f64 {
+        self.k_volume
+    }
+    /// Signed dihedral angles θ (radians, > 0 convex) of every link pair at `x` (allocates;
+    /// for diagnostics). Degenerate pairs give NaN.
+    pub fn dihedral_angles(&self, x: &[DVec3]) -> Vec<f64> {
+        self.dihedrals
+            .iter()
+            .map(|d| {
+                let [a, b, c, dd] = d.map(|v| x[v as usize]);
+                kernels::dihedral_angle(a, b, c, dd).unwrap_or(f64::NAN)
+            })
+            .collect()
     }
     /// Largest L_i/Lmax_i at `x` and its link (how close the mesh is to a failure).
     pub fn max_extension(&self, x: &[DVec3]) -> (f64, usize) {

@@ -9,13 +9,25 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
     #[error("{file}: cannot read: {source}")]
-    Read { file: String, source: std::io::Error },
+    Read {
+        file: String,
+        source: std::io::Error,
+    },
     #[error("{file}: {message}")]
     Syntax { file: String, message: String },
     #[error("{file}: key `{key}` = {value} is not allowed: {allowed}")]
-    Value { file: String, key: String, value: String, allowed: String },
+    Value {
+        file: String,
+        key: String,
+        value: String,
+        allowed: String,
+    },
     #[error("{file}: missing key `{key}` ({what})")]
-    Missing { file: String, key: String, what: String },
+    Missing {
+        file: String,
+        key: String,
+        what: String,
+    },
     #[error("--set {assignment}: {message}")]
     Override { assignment: String, message: String },
 }
@@ -226,13 +238,19 @@ pub struct FluidRunSection {
 }
 
 fn syntax(file: &str, e: impl std::fmt::Display) -> ScenarioError {
-    ScenarioError::Syntax { file: file.to_string(), message: e.to_string().trim_end().to_string() }
+    ScenarioError::Syntax {
+        file: file.to_string(),
+        message: e.to_string().trim_end().to_string(),
+    }
 }
 
 /// Reads, overrides (`key=value`, dotted keys) and validates a scenario file.
 pub fn load(path: &Path, sets: &[String]) -> Result<Scenario, ScenarioError> {
     let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Read { file: file.clone(), source })?;
+    let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Read {
+        file: file.clone(),
+        source,
+    })?;
     let mut s = load_str(&text, &file, sets)?;
     if let Scenario::Stretching(st) = &mut s {
         st.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
@@ -258,7 +276,13 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
         apply_set(&mut table, a)?;
     }
     let version = match table.get("format_version") {
-        None => return Err(ScenarioError::Missing { file: file.into(), key: "format_version".into(), what: format!("the file format version, {FORMAT_VERSION} for this build") }),
+        None => {
+            return Err(ScenarioError::Missing {
+                file: file.into(),
+                key: "format_version".into(),
+                what: format!("the file format version, {FORMAT_VERSION} for this build"),
+            })
+        }
         Some(v) => v.as_integer(),
     };
     if version != Some(FORMAT_VERSION as i64) {
@@ -271,7 +295,13 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
     }
     let kind = match table.get("kind").and_then(|k| k.as_str()) {
         Some(k) => k.to_string(),
-        None => return Err(ScenarioError::Missing { file: file.into(), key: "kind".into(), what: "one of \"stretching\", \"dpd-fluid\"".into() }),
+        None => {
+            return Err(ScenarioError::Missing {
+                file: file.into(),
+                key: "kind".into(),
+                what: "one of \"stretching\", \"dpd-fluid\"".into(),
+            })
+        }
     };
     let value = toml::Value::Table(table);
     match kind.as_str() {
@@ -285,15 +315,25 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
             validate_fluid(&s, file)?;
             Ok(Scenario::DpdFluid(s))
         }
-        other => Err(ScenarioError::Value { file: file.into(), key: "kind".into(), value: format!("{other:?}"), allowed: "one of \"stretching\", \"dpd-fluid\"".into() }),
+        other => Err(ScenarioError::Value {
+            file: file.into(),
+            key: "kind".into(),
+            value: format!("{other:?}"),
+            allowed: "one of \"stretching\", \"dpd-fluid\"".into(),
+        }),
     }
 }
 
 /// Applies `a.b.c=value` to the table. The value is parsed as TOML (numbers, booleans, arrays,
 /// quoted strings); anything that does not parse is taken as a bare string.
 fn apply_set(table: &mut toml::Table, assignment: &str) -> Result<(), ScenarioError> {
-    let bad = |m: &str| ScenarioError::Override { assignment: assignment.to_string(), message: m.to_string() };
-    let (key, raw) = assignment.split_once('=').ok_or_else(|| bad("expected key=value"))?;
+    let bad = |m: &str| ScenarioError::Override {
+        assignment: assignment.to_string(),
+        message: m.to_string(),
+    };
+    let (key, raw) = assignment
+        .split_once('=')
+        .ok_or_else(|| bad("expected key=value"))?;
     let key = key.trim();
     if key.is_empty() || key.split('.').any(str::is_empty) {
         return Err(bad("empty key"));
@@ -320,15 +360,32 @@ struct Check<'a> {
 }
 
 impl Check<'_> {
-    fn range(&self, key: &str, v: f64, lo: f64, hi: f64, allowed: &str) -> Result<(), ScenarioError> {
+    fn range(
+        &self,
+        key: &str,
+        v: f64,
+        lo: f64,
+        hi: f64,
+        allowed: &str,
+    ) -> Result<(), ScenarioError> {
         if v.is_finite() && v >= lo && v <= hi {
             Ok(())
         } else {
-            Err(ScenarioError::Value { file: self.file.into(), key: key.into(), value: format!("{v}"), allowed: allowed.into() })
+            Err(ScenarioError::Value {
+                file: self.file.into(),
+                key: key.into(),
+                value: format!("{v}"),
+                allowed: allowed.into(),
+            })
         }
     }
     fn fail(&self, key: &str, value: impl std::fmt::Display, allowed: &str) -> ScenarioError {
-        ScenarioError::Value { file: self.file.into(), key: key.into(), value: value.to_string(), allowed: allowed.into() }
+        ScenarioError::Value {
+            file: self.file.into(),
+            key: key.into(),
+            value: value.to_string(),
+            allowed: allowed.into(),
+        }
     }
 }
 
@@ -341,13 +398,43 @@ fn validate_membrane(m: &MembraneSection, c: &Check) -> Result<(), ScenarioError
             &format!("an integer from {MIN_VERTICES} to 2000000 (the coarse-grained model needs at least {MIN_VERTICES} vertices to mesh and represent the cell)"),
         ));
     }
-    c.range("membrane.temperature_k", m.temperature_k, 200.0, 400.0, "a temperature in kelvin between 200 and 400 (room temperature is 300)")?;
-    c.range("membrane.persistence_scale", m.persistence_scale, 0.1, 10.0, "a factor between 0.1 and 10 multiplying the Eq. 12 persistence length")?;
+    c.range(
+        "membrane.temperature_k",
+        m.temperature_k,
+        200.0,
+        400.0,
+        "a temperature in kelvin between 200 and 400 (room temperature is 300)",
+    )?;
+    c.range(
+        "membrane.persistence_scale",
+        m.persistence_scale,
+        0.1,
+        10.0,
+        "a factor between 0.1 and 10 multiplying the Eq. 12 persistence length",
+    )?;
     if let Some(p) = m.persistence_length_nm {
-        c.range("membrane.persistence_length_nm", p, 0.01, 1000.0, "a length in nm between 0.01 and 1000 (the fine model's is 7.5)")?;
+        c.range(
+            "membrane.persistence_length_nm",
+            p,
+            0.01,
+            1000.0,
+            "a length in nm between 0.01 and 1000 (the fine model's is 7.5)",
+        )?;
     }
-    c.range("membrane.area_constraint_n_per_m", m.area_constraint_n_per_m, 0.0, 10.0, "k_a in N/m between 0 and 10 (default 5e-3; the shear modulus is 8.3e-6)")?;
-    c.range("membrane.volume_constraint_n_per_m2", m.volume_constraint_n_per_m2, 0.0, 1e7, "k_v in N/m² between 0 and 1e7 (default 5e3)")?;
+    c.range(
+        "membrane.area_constraint_n_per_m",
+        m.area_constraint_n_per_m,
+        0.0,
+        10.0,
+        "k_a in N/m between 0 and 10 (default 5e-3; the shear modulus is 8.3e-6)",
+    )?;
+    c.range(
+        "membrane.volume_constraint_n_per_m2",
+        m.volume_constraint_n_per_m2,
+        0.0,
+        1e7,
+        "k_v in N/m² between 0 and 1e7 (default 5e3)",
+    )?;
     Ok(())
 }
 
@@ -359,16 +446,38 @@ fn validate_stretching(s: &StretchingScenario, file: &str) -> Result<(), Scenari
     validate_membrane(&s.membrane, &c)?;
     let st = &s.stretching;
     if st.forces_pn.is_empty() {
-        return Err(c.fail("stretching.forces_pn", "[]", "a non-empty list of forces in pN"));
+        return Err(c.fail(
+            "stretching.forces_pn",
+            "[]",
+            "a non-empty list of forces in pN",
+        ));
     }
     for (i, &f) in st.forces_pn.iter().enumerate() {
-        c.range(&format!("stretching.forces_pn[{i}]"), f, 0.0, 500.0, "a force in pN between 0 and 500")?;
+        c.range(
+            &format!("stretching.forces_pn[{i}]"),
+            f,
+            0.0,
+            500.0,
+            "a force in pN between 0 and 500",
+        )?;
         if i > 0 && f <= st.forces_pn[i - 1] {
             return Err(c.fail(&format!("stretching.forces_pn[{i}]"), f, "forces in strictly increasing order (each equilibrium continues from the previous one)"));
         }
     }
-    c.range("stretching.end_fraction", st.end_fraction, 0.001, 0.25, "a fraction of the vertices between 0.001 and 0.25 (the paper's is 0.05)")?;
-    c.range("stretching.tolerance_pn", st.tolerance_pn, 1e-9, 1.0, "a force in pN between 1e-9 and 1")?;
+    c.range(
+        "stretching.end_fraction",
+        st.end_fraction,
+        0.001,
+        0.25,
+        "a fraction of the vertices between 0.001 and 0.25 (the paper's is 0.05)",
+    )?;
+    c.range(
+        "stretching.tolerance_pn",
+        st.tolerance_pn,
+        1e-9,
+        1.0,
+        "a force in pN between 1e-9 and 1",
+    )?;
     if st.max_iterations == 0 {
         return Err(c.fail("stretching.max_iterations", 0, "a positive integer"));
     }
@@ -378,27 +487,89 @@ fn validate_stretching(s: &StretchingScenario, file: &str) -> Result<(), Scenari
 fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
     let c = Check { file };
     let f = &s.fluid;
-    c.range("fluid.density", f.density, 0.1, 30.0, "a number density between 0.1 and 30 per rc³ (standard: 3)")?;
-    c.range("fluid.cutoff", f.cutoff, 0.1, 10.0, "a cut-off between 0.1 and 10")?;
+    c.range(
+        "fluid.density",
+        f.density,
+        0.1,
+        30.0,
+        "a number density between 0.1 and 30 per rc³ (standard: 3)",
+    )?;
+    c.range(
+        "fluid.cutoff",
+        f.cutoff,
+        0.1,
+        10.0,
+        "a cut-off between 0.1 and 10",
+    )?;
     for (k, &l) in f.box_size.iter().enumerate() {
-        c.range(&format!("fluid.box_size[{k}]"), l, 3.0 * f.cutoff, 1e4, "a box edge of at least 3 cut-offs")?;
+        c.range(
+            &format!("fluid.box_size[{k}]"),
+            l,
+            3.0 * f.cutoff,
+            1e4,
+            "a box edge of at least 3 cut-offs",
+        )?;
     }
     let n = f.density * f.box_size.iter().product::<f64>();
     if n > 5e8 {
-        return Err(c.fail("fluid.box_size", format!("{:?}", f.box_size), "a box holding at most 5e8 particles at this density"));
+        return Err(c.fail(
+            "fluid.box_size",
+            format!("{:?}", f.box_size),
+            "a box holding at most 5e8 particles at this density",
+        ));
     }
-    c.range("fluid.a", f.a, 0.0, 1e4, "a conservative amplitude between 0 and 1e4")?;
-    c.range("fluid.gamma", f.gamma, 0.0, 1e4, "a dissipative coefficient between 0 and 1e4")?;
-    c.range("fluid.kbt", f.kbt, 1e-6, 1e3, "a thermal energy between 1e-6 and 1e3")?;
-    c.range("fluid.weight_exponent", f.weight_exponent, 0.05, 4.0, "an exponent between 0.05 and 4 (1 standard; 0.5, 0.25 for higher Schmidt number)")?;
+    c.range(
+        "fluid.a",
+        f.a,
+        0.0,
+        1e4,
+        "a conservative amplitude between 0 and 1e4",
+    )?;
+    c.range(
+        "fluid.gamma",
+        f.gamma,
+        0.0,
+        1e4,
+        "a dissipative coefficient between 0 and 1e4",
+    )?;
+    c.range(
+        "fluid.kbt",
+        f.kbt,
+        1e-6,
+        1e3,
+        "a thermal energy between 1e-6 and 1e3",
+    )?;
+    c.range(
+        "fluid.weight_exponent",
+        f.weight_exponent,
+        0.05,
+        4.0,
+        "an exponent between 0.05 and 4 (1 standard; 0.5, 0.25 for higher Schmidt number)",
+    )?;
     let r = &s.run;
-    c.range("run.timestep", r.timestep, 1e-6, 0.2, "a time step between 1e-6 and 0.2 (standard: 0.01)")?;
-    c.range("run.lambda", r.lambda, 0.0, 1.0, "a Groot–Warren λ between 0 and 1 (0.5 standard)")?;
+    c.range(
+        "run.timestep",
+        r.timestep,
+        1e-6,
+        0.2,
+        "a time step between 1e-6 and 0.2 (standard: 0.01)",
+    )?;
+    c.range(
+        "run.lambda",
+        r.lambda,
+        0.0,
+        1.0,
+        "a Groot–Warren λ between 0 and 1 (0.5 standard)",
+    )?;
     if r.steps == 0 {
         return Err(c.fail("run.steps", 0, "a positive number of steps"));
     }
     if r.sample_every == 0 || r.sample_every > r.steps {
-        return Err(c.fail("run.sample_every", r.sample_every, "a positive interval no longer than run.steps"));
+        return Err(c.fail(
+            "run.sample_every",
+            r.sample_every,
+            "a positive interval no longer than run.steps",
+        ));
     }
     Ok(())
 }
@@ -419,7 +590,16 @@ forces_pn = [0, 100, 200]
 
     #[test]
     fn good_file_and_overrides() {
-        let s = load_str(GOOD, "good.toml", &["membrane.vertices=800".into(), "stretching.forces_pn=[0, 50]".into(), "membrane.reference=uniform".into()]).unwrap();
+        let s = load_str(
+            GOOD,
+            "good.toml",
+            &[
+                "membrane.vertices=800".into(),
+                "stretching.forces_pn=[0, 50]".into(),
+                "membrane.reference=uniform".into(),
+            ],
+        )
+        .unwrap();
         let Scenario::Stretching(s) = s else { panic!() };
         assert_eq!(s.membrane.vertices, 800);
         assert_eq!(s.stretching.forces_pn, vec![0.0, 50.0]);

@@ -6,6 +6,7 @@
 //! and what is allowed. [`run`] executes it and returns the results that go into
 //! `summary.json`.
 
+pub mod figures;
 pub mod file;
 pub mod fluid;
 pub mod mesh_cache;
@@ -47,12 +48,18 @@ pub enum RunError {
     #[error("output: {0}")]
     Output(String),
     #[error("{path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
 }
 
 /// Runs a validated scenario; returns its results (the `results` object of `summary.json`).
 pub fn run(scenario: &Scenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
-    std::fs::create_dir_all(&ctx.out_dir).map_err(|source| RunError::Io { path: ctx.out_dir.clone(), source })?;
+    std::fs::create_dir_all(&ctx.out_dir).map_err(|source| RunError::Io {
+        path: ctx.out_dir.clone(),
+        source,
+    })?;
     match scenario {
         Scenario::Stretching(s) => stretching::run(s, ctx),
         Scenario::DpdFluid(s) => fluid::run(s, ctx),

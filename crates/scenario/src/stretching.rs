@@ -4,10 +4,10 @@
 use crate::file::StretchingScenario;
 use crate::mesh_cache::{self, constants_um_pn};
 use crate::{RunContext, RunError};
+use hemodpd_io::{FrameScalar, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
 use hemodpd_membrane::params::ModelParams;
 use hemodpd_membrane::stretch::{self, StretchOptions, StretchPoint};
 use hemodpd_membrane::{MembraneModel, Mesh, ReferenceState};
-use hemodpd_io::{FrameScalar, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
 use serde_json::json;
 
 /// Mills, Qie, Dao, Lim, Suresh (2004), healthy RBC (korali digitisation, see the file's first line):
@@ -33,7 +33,15 @@ pub fn mills_2004() -> Vec<MillsPoint> {
         .filter(|l| !l.starts_with('#') && !l.starts_with("force"))
         .filter_map(|l| {
             let v: Vec<f64> = l.split(',').filter_map(|x| x.trim().parse().ok()).collect();
-            (v.len() == 7).then(|| MillsPoint { force_pn: v[0], dt_um: v[1], da_um: v[2], dt_lo: v[3], dt_hi: v[4], da_lo: v[5], da_hi: v[6] })
+            (v.len() == 7).then(|| MillsPoint {
+                force_pn: v[0],
+                dt_um: v[1],
+                da_um: v[2],
+                dt_lo: v[3],
+                dt_hi: v[4],
+                da_lo: v[5],
+                da_hi: v[6],
+            })
         })
         .collect()
 }
@@ -57,7 +65,12 @@ pub fn compare_with_mills(force: &[f64], da: &[f64], dt: &[f64]) -> serde_json::
     let (mut sa, mut st, mut n) = (0.0, 0.0, 0usize);
     let mut rows = Vec::new();
     for m in mills_2004() {
-        let (Some(a), Some(t)) = (interpolate(force, da, m.force_pn), interpolate(force, dt, m.force_pn)) else { continue };
+        let (Some(a), Some(t)) = (
+            interpolate(force, da, m.force_pn),
+            interpolate(force, dt, m.force_pn),
+        ) else {
+            continue;
+        };
         sa += (a - m.da_um).powi(2);
         st += (t - m.dt_um).powi(2);
         n += 1;
@@ -104,8 +117,16 @@ pub fn mesh_of(s: &StretchingScenario) -> Result<(Mesh, serde_json::Value), RunE
 }
 
 /// Builds the membrane model of a scenario on its resting mesh, in µm/pN units.
-pub fn model_of(s: &StretchingScenario, params: &ModelParams, mesh: &Mesh) -> Result<MembraneModel, RunError> {
-    let c = constants_um_pn(params, s.membrane.area_constraint_n_per_m, s.membrane.volume_constraint_n_per_m2);
+pub fn model_of(
+    s: &StretchingScenario,
+    params: &ModelParams,
+    mesh: &Mesh,
+) -> Result<MembraneModel, RunError> {
+    let c = constants_um_pn(
+        params,
+        s.membrane.area_constraint_n_per_m,
+        s.membrane.volume_constraint_n_per_m2,
+    );
     let topo = mesh.topology()?;
     Ok(match s.membrane.reference {
         ReferenceState::Uniform => MembraneModel::uniform(&topo, &c, mesh.area(), mesh.volume())?,
@@ -132,18 +153,32 @@ pub fn prepare(s: &StretchingScenario) -> Result<Prepared, RunError> {
     if s.membrane.reference == ReferenceState::StressFree {
         info["persistence_ratio_distribution"] = json!(model.persistence_ratio_distribution());
     }
-    Ok(Prepared { params, mesh, model, info })
+    Ok(Prepared {
+        params,
+        mesh,
+        model,
+        info,
+    })
 }
 
 /// Runs the stretching protocol; `observer` sees each equilibrium as it is reached.
-pub fn solve(s: &StretchingScenario, p: &Prepared, observer: impl FnMut(&StretchPoint)) -> Result<Vec<StretchPoint>, RunError> {
+pub fn solve(
+    s: &StretchingScenario,
+    p: &Prepared,
+    observer: impl FnMut(&StretchPoint),
+) -> Result<Vec<StretchPoint>, RunError> {
     let opts = StretchOptions {
         forces: s.stretching.forces_pn.clone(),
         end_fraction: s.stretching.end_fraction,
         tolerance: s.stretching.tolerance_pn,
         max_iterations: s.stretching.max_iterations as usize,
     };
-    Ok(stretch::stretch(&p.model, &p.mesh.vertices, &opts, observer)?)
+    Ok(stretch::stretch(
+        &p.model,
+        &p.mesh.vertices,
+        &opts,
+        observer,
+    )?)
 }
 
 /// The scenario's run: solves, writes the shapes, returns the results object.
@@ -151,10 +186,17 @@ pub fn run(s: &StretchingScenario, ctx: &RunContext) -> Result<serde_json::Value
     let t0 = std::time::Instant::now();
     let prepared = prepare(s)?;
     let mut shapes = if s.output.shapes {
-        let meta = RunMetadata::new("stretching", toml::to_string(s).unwrap_or_default(), s.seed, stretching_units());
-        let mut w = TrajectoryWriter::create(ctx.out_dir.join("shapes.h5"), &meta).map_err(out_err)?;
+        let meta = RunMetadata::new(
+            "stretching",
+            toml::to_string(s).unwrap_or_default(),
+            s.seed,
+            stretching_units(),
+        );
+        let mut w =
+            TrajectoryWriter::create(ctx.out_dir.join("shapes.h5"), &meta).map_err(out_err)?;
         w.write_mesh(&prepared.mesh.triangles).map_err(out_err)?;
-        w.set_membrane_reference(prepared.model.area0(), prepared.model.volume0()).map_err(out_err)?;
+        w.set_membrane_reference(prepared.model.area0(), prepared.model.volume0())
+            .map_err(out_err)?;
         Some(w)
     } else {
         None
@@ -170,12 +212,26 @@ pub fn run(s: &StretchingScenario, ctx: &RunContext) -> Result<serde_json::Value
         }
         if let Some(w) = shapes.as_mut() {
             let scalars = [
-                FrameScalar { name: "force", value: p.force, quantity: Quantity::Force },
-                FrameScalar { name: "axial_diameter", value: p.axial_diameter, quantity: Quantity::Length },
-                FrameScalar { name: "transverse_diameter", value: p.transverse_diameter, quantity: Quantity::Length },
+                FrameScalar {
+                    name: "force",
+                    value: p.force,
+                    quantity: Quantity::Force,
+                },
+                FrameScalar {
+                    name: "axial_diameter",
+                    value: p.axial_diameter,
+                    quantity: Quantity::Length,
+                },
+                FrameScalar {
+                    name: "transverse_diameter",
+                    value: p.transverse_diameter,
+                    quantity: Quantity::Length,
+                },
             ];
             // one frame per force: step = time = the frame's index; the force is the scalar "force"
-            if let Err(e) = w.append_membrane_frame(frame, frame as f64, &p.positions, None, &scalars) {
+            if let Err(e) =
+                w.append_membrane_frame(frame, frame as f64, &p.positions, None, &scalars)
+            {
                 write_error.get_or_insert(e);
             }
             frame += 1;

@@ -46,14 +46,15 @@ pub fn area_gradient(nh: DVec3, a: DVec3, b: DVec3, c: DVec3) -> [DVec3; 3] {
 /// Signed dihedral angle of the pair of triangles (a, b, c) and (d, c, b), which share the link
 /// b–c and are both outward-oriented: θ is the angle between their outward normals
 /// N1 = (b − a) × (c − a) and N2 = (c − d) × (b − d), positive for a convex fold (sign of
-/// (N1 × N2)·(c − b)). Computed as atan2(sin, cos), accurate for all angles.
+/// (N1 × N2)·(c − b)).
 ///
-/// Returns `(θ, ∂θ/∂[a, b, c, d])`, or `None` if either triangle or the link is degenerate.
-/// The gradient: ∂θ/∂a = −|e|/|N1|² N1, ∂θ/∂d = −|e|/|N2|² N2, and, with the projections
-/// t_a = (a − b)·e/|e|², t_d = (d − b)·e/|e|² of the wings on e = c − b,
+/// Returns `(cos θ, sin θ, ∂θ/∂[a, b, c, d])` (no trigonometric call: cos θ = N1·N2/(|N1||N2|),
+/// sin θ = (N1 × N2)·ê/(|N1||N2|), exact for every angle), or `None` if either triangle or the
+/// link is degenerate. The gradient: ∂θ/∂a = −|e|/|N1|² N1, ∂θ/∂d = −|e|/|N2|² N2, and, with
+/// the projections t_a = (a − b)·e/|e|², t_d = (d − b)·e/|e|² of the wings on e = c − b,
 /// ∂θ/∂b = −(1 − t_a) ∂θ/∂a − (1 − t_d) ∂θ/∂d, ∂θ/∂c = −t_a ∂θ/∂a − t_d ∂θ/∂d.
 #[inline(always)]
-pub fn dihedral(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> Option<(f64, [DVec3; 4])> {
+pub fn dihedral(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> Option<(f64, f64, [DVec3; 4])> {
     let e = c - b;
     let n1 = (b - a).cross(c - a);
     let n2 = (c - d).cross(b - d);
@@ -64,30 +65,39 @@ pub fn dihedral(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> Option<(f64, [DVec3; 
         return None;
     }
     let el = e2.sqrt();
-    let sin_part = n1.cross(n2).dot(e) / el;
-    let cos_part = n1.dot(n2);
-    let theta = sin_part.atan2(cos_part);
+    let inv_e2 = 1.0 / e2;
+    let inv_n = 1.0 / (n1s * n2s).sqrt();
+    let cos_t = n1.dot(n2) * inv_n;
+    let sin_t = n1.cross(n2).dot(e) * (inv_n / el);
     let ga = n1 * (-el / n1s);
     let gd = n2 * (-el / n2s);
-    let inv_e2 = 1.0 / e2;
     let ta = (a - b).dot(e) * inv_e2;
     let td = (d - b).dot(e) * inv_e2;
     let gb = ga * (ta - 1.0) + gd * (td - 1.0);
     let gc = ga * (-ta) + gd * (-td);
-    Some((theta, [ga, gb, gc, gd]))
+    Some((cos_t, sin_t, [ga, gb, gc, gd]))
 }
 
-/// The signed dihedral angle alone (same convention as [`dihedral`]).
+/// cos θ and sin θ of the signed dihedral angle (same convention as [`dihedral`]).
 #[inline(always)]
-pub fn dihedral_angle(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> Option<f64> {
+pub fn dihedral_cos_sin(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> Option<(f64, f64)> {
     let e = c - b;
     let n1 = (b - a).cross(c - a);
     let n2 = (c - d).cross(b - d);
     let e2 = e.length_squared();
-    if !(e2 > 0.0 && n1.length_squared() > 0.0 && n2.length_squared() > 0.0) {
+    let n1s = n1.length_squared();
+    let n2s = n2.length_squared();
+    if !(e2 > 0.0 && n1s > 0.0 && n2s > 0.0) {
         return None;
     }
-    Some((n1.cross(n2).dot(e) / e2.sqrt()).atan2(n1.dot(n2)))
+    let inv_n = 1.0 / (n1s * n2s).sqrt();
+    Some((n1.dot(n2) * inv_n, n1.cross(n2).dot(e) * (inv_n / e2.sqrt())))
+}
+
+/// The signed dihedral angle θ ∈ (−π, π] (same convention as [`dihedral`]).
+#[inline(always)]
+pub fn dihedral_angle(a: DVec3, b: DVec3, c: DVec3, d: DVec3) -> Option<f64> {
+    dihedral_cos_sin(a, b, c, d).map(|(cos_t, sin_t)| sin_t.atan2(cos_t))
 }
 
 /// ∂A/∂L_a of a triangle with sides (a, b, c) and area `area` (Heron): a(b² + c² − a²)/(8A).
