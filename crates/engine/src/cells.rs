@@ -6,8 +6,12 @@
 //! makes the pair order, and so the floating-point sums, a function of the positions only.
 
 use glam::DVec3;
+use rayon::prelude::*;
 
 use crate::{EngineError, PeriodicBox, Real};
+
+/// Smallest chunk of particles a rayon task gets in the O(N) passes.
+pub(crate) const MIN_LEN: usize = 4096;
 
 /// The grid of cells.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -124,6 +128,7 @@ pub struct CellList {
     /// Sorted ids.
     pub id: Vec<u32>,
     cell: Vec<u32>,
+    inv: Vec<u32>,
 }
 
 impl CellList {
@@ -138,47 +143,73 @@ impl CellList {
             ptype: Vec::new(),
             id: Vec::new(),
             cell: Vec::new(),
+            inv: Vec::new(),
         }
     }
 
     /// Sorts the particles into cells. `vel_of(i)` gives the velocity the dissipative force
-    /// should see for storage index i. Positions must be inside the box.
+    /// should see for storage index i. Positions must be inside the box. The per-particle
+    /// passes run in parallel (rayon); the counting sort itself is sequential, so the order is
+    /// the same for any thread count.
     pub fn build(
         &mut self,
         pos: &[DVec3],
         ptype: &[u16],
         id: &[u32],
-        vel_of: impl Fn(usize) -> DVec3,
+        vel_of: impl Fn(usize) -> DVec3 + Sync,
     ) {
         let n = pos.len();
         let nc = self.grid.ncells();
+        let grid = self.grid;
         self.cell.resize(n, 0);
+        self.cell
+            .par_iter_mut()
+            .zip(pos.par_iter())
+            .with_min_len(MIN_LEN)
+            .for_each(|(c, p)| *c = grid.cell_of(*p) as u32);
         self.start.clear();
         self.start.resize(nc + 1, 0);
-        for (c, p) in self.cell.iter_mut().zip(pos) {
-            let k = self.grid.cell_of(*p);
-            *c = k as u32;
-            self.start[k + 1] += 1;
+        for &c in &self.cell {
+            self.start[c as usize + 1] += 1;
         }
         for c in 0..nc {
             self.start[c + 1] += self.start[c];
         }
-        // Stable counting sort; `fill` is reused as the running insertion point.
+        // Stable counting sort; `fill` is the running insertion point of each cell.
         self.perm.resize(n, 0);
+        self.inv.resize(n, 0);
         let mut fill: Vec<u32> = self.start[..nc].to_vec();
-        for i in 0..n {
-            let c = self.cell[i] as usize;
-            self.perm[fill[c] as usize] = i as u32;
-            fill[c] += 1;
+        for (i, &c) in self.cell.iter().enumerate() {
+            let k = fill[c as usize];
+            self.perm[k as usize] = i as u32;
+            self.inv[i] = k;
+            fill[c as usize] = k + 1;
         }
-        self.pos.clear();
-        self.vel.clear();
-        self.ptype.clear();
-        self.id.clear();
-        self.pos.extend(self.perm.iter().map(|&i| pos[i as usize]));
-        self.vel.extend(self.perm.iter().map(|&i| vel_of(i as usize)));
-        self.ptype.extend(self.perm.iter().map(|&i| ptype[i as usize]));
-        self.id.extend(self.perm.iter().map(|&i| id[i as usize]));
+        self.pos.resize(n, DVec3::ZERO);
+        self.vel.resize(n, DVec3::ZERO);
+        self.ptype.resize(n, 0);
+        self.id.resize(n, 0);
+        let perm = &self.perm;
+        self.pos
+            .par_iter_mut()
+            .zip(self.vel.par_iter_mut())
+            .zip(self.ptype.par_iter_mut())
+            .zip(self.id.par_iter_mut())
+            .zip(perm.par_iter())
+            .with_min_len(MIN_LEN)
+            .for_each(|((((x, v), t), d), &i)| {
+                let i = i as usize;
+                *x = pos[i];
+                *v = vel_of(i);
+                *t = ptype[i];
+                *d = id[i];
+            });
+    }
+
+    /// Storage index → sorted index (inverse of `perm`).
+    #[inline]
+    pub fn inverse(&self) -> &[u32] {
+        &self.inv
     }
 
     /// Sorted range of cell c.

@@ -13,7 +13,7 @@
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
-use crate::cells::{CellGrid, CellList};
+use crate::cells::{CellGrid, CellList, MIN_LEN};
 use crate::error::{CAUSE_DT, CAUSE_FAST};
 use crate::kernel::DpdTable;
 use crate::rng::step_key;
@@ -295,15 +295,31 @@ impl<E: Extension> Simulation<E> {
                 virial,
             ),
         };
-        let force = &mut self.particles.force;
-        for (k, &i) in self.cells.perm.iter().enumerate() {
-            force[i as usize] = self.sforce[k];
-        }
+        // Scatter back to storage order (a parallel gather through the inverse permutation),
+        // adding the body forces on the way.
+        let (sforce, inv) = (&self.sforce, self.cells.inverse());
+        let p = &mut self.particles;
         if self.any_body {
-            let body = &self.body;
-            for (f, &t) in force.iter_mut().zip(&self.particles.ptype) {
-                *f += body[t as usize];
-            }
+            let (body, frozen) = (&self.body, &self.frozen);
+            p.force
+                .par_iter_mut()
+                .zip(inv.par_iter())
+                .zip(p.ptype.par_iter())
+                .with_min_len(MIN_LEN)
+                .for_each(|((f, &k), &t)| {
+                    let t = t as usize;
+                    *f = if frozen[t] {
+                        sforce[k as usize]
+                    } else {
+                        sforce[k as usize] + body[t]
+                    };
+                });
+        } else {
+            p.force
+                .par_iter_mut()
+                .zip(inv.par_iter())
+                .with_min_len(MIN_LEN)
+                .for_each(|(f, &k)| *f = sforce[k as usize]);
         }
         Ok(w)
     }
@@ -333,7 +349,7 @@ impl<E: Extension> Simulation<E> {
                 .zip(p.force.par_iter())
                 .zip(p.ptype.par_iter())
                 .enumerate()
-                .with_min_len(4096)
+                .with_min_len(MIN_LEN)
                 .filter_map(|(i, (((x, v), f), &t))| {
                     let t = t as usize;
                     if frozen[t] {
@@ -378,7 +394,7 @@ impl<E: Extension> Simulation<E> {
                 .zip(p.force.par_iter())
                 .zip(p.ptype.par_iter())
                 .enumerate()
-                .with_min_len(4096)
+                .with_min_len(MIN_LEN)
                 .filter_map(|(i, ((v, f), &t))| {
                     let t = t as usize;
                     if !frozen[t] {

@@ -88,21 +88,23 @@ pub fn reverse_poiseuille(
     (rho * g / (2.0 * a1), rho * g / (2.0 * a2), temps[0])
 }
 
-/// Quick version (≈ 750 particles, 7000 steps). Expected: published reverse-Poiseuille and
-/// Lees–Edwards measurements of this fluid give η ≈ 0.85–1.0; kinetic theory (no
-/// correlations) gives 0.957 (reference/dpd_viscosity_kinetic_theory.csv); our long run gives
-/// the value in docs/engine.md. Statistical error of this short run: the two halves scatter by
-/// a few %; we accept 0.80 ≤ η ≤ 1.10 for each half, i.e. the published range widened by the
-/// quick run's ~5% error; the mean of the halves must be within 12% of kinetic theory.
+/// Quick version (750 particles, 7000 steps, g = 0.2, ≈ 2 s). Reference values: our long run
+/// (docs/engine.md) gives η = 0.846 ± 0.002 (g = 0.1, 6×6×16, 8 halves); published
+/// measurements of this fluid are η ≈ 0.85–1.0; kinetic theory (no correlations) gives 0.957
+/// (reference/dpd_viscosity_kinetic_theory.csv). The quick run's own scatter is ≈ 0.04 per
+/// half (long-run seed-to-seed scatter 0.01 scaled by √(steps ratio × volume ratio)).
+/// Accepted: each half in [0.74, 1.00] and the mean of the halves in [0.76, 1.00], i.e. the
+/// published band widened downward by 2–2.5× the quick run's scatter; a broken dissipative or
+/// random force (wrong σ, γ, or weight) moves η by far more.
 #[test]
 fn viscosity_reverse_poiseuille_quick() {
     let (e1, e2, t) = reverse_poiseuille(5.0, 10.0, 0.2, 2500, 4500, 5, 11);
     let eta = 0.5 * (e1 + e2);
     eprintln!("quick reverse Poiseuille: η = {e1:.4}, {e2:.4} (mean {eta:.4}), kBT_pec = {t:.4}");
     for e in [e1, e2] {
-        assert!((0.80..=1.10).contains(&e), "η = {e}");
+        assert!((0.74..=1.00).contains(&e), "η = {e}");
     }
-    assert!((eta / 0.957 - 1.0).abs() < 0.12, "η = {eta}");
+    assert!((0.76..=1.00).contains(&eta), "η = {eta}");
 }
 
 /// Long version for the docs: `cargo test --release -p hemodpd-engine --test viscosity -- --ignored --nocapture`.

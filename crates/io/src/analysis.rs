@@ -308,10 +308,12 @@ fn shape_metrics(positions: &[DVec3], triangles: &[[u32; 3]]) -> FrameMetrics {
         DVec3::new(-theta.sin(), theta.cos(), 0.0),
     );
     let extent = |e: DVec3| {
-        let (lo, hi) = positions.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
-            let s = p.dot(e);
-            (lo.min(s), hi.max(s))
-        });
+        let (lo, hi) = positions
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                let s = p.dot(e);
+                (lo.min(s), hi.max(s))
+            });
         hi - lo
     };
     let (l, b) = (extent(e1), extent(e2));
@@ -436,23 +438,13 @@ pub fn analyze_frames(
     } else {
         None
     };
-    Ok(Analysis {
-        frames: out,
-        rotation,
-    })
+    Ok(Analysis { frames: out, rotation })
 }
 
-fn rotation_metrics(
-    frames: &[FrameInput],
-    metrics: &[FrameMetrics],
-    tracked: usize,
-) -> RotationMetrics {
+fn rotation_metrics(frames: &[FrameInput], metrics: &[FrameMetrics], tracked: usize) -> RotationMetrics {
     use std::f64::consts::PI;
     let t: Vec<f64> = metrics.iter().map(|m| m.time).collect();
-    let incl = unwrap(
-        &metrics.iter().map(|m| m.inclination_angle).collect::<Vec<_>>(),
-        PI,
-    );
+    let incl = unwrap(&metrics.iter().map(|m| m.inclination_angle).collect::<Vec<_>>(), PI);
     let tumbling = slope(&t, &incl);
     let tm = t.iter().sum::<f64>() / t.len() as f64;
     let im = incl.iter().sum::<f64>() / incl.len() as f64;
@@ -490,9 +482,7 @@ fn rotation_metrics(
     }
     cand.sort_by(|a, b| a.0.total_cmp(&b.0));
     let want = tracked.clamp(1, cand.len());
-    let picked: Vec<u32> = (0..want)
-        .map(|j| cand[j * cand.len() / want].1)
-        .collect();
+    let picked: Vec<u32> = (0..want).map(|j| cand[j * cand.len() / want].1).collect();
     let rates: Vec<f64> = picked
         .iter()
         .map(|&vi| {
@@ -541,9 +531,7 @@ pub fn analyze_file(path: impl AsRef<Path>, options: &AnalysisOptions) -> Result
     }
     let triangles = reader.triangles()?;
     let n = reader.membrane_frames()?;
-    let raw: Vec<_> = (0..n)
-        .map(|i| reader.membrane_frame(i))
-        .collect::<Result<_>>()?;
+    let raw: Vec<_> = (0..n).map(|i| reader.membrane_frame(i)).collect::<Result<_>>()?;
     let inputs: Vec<FrameInput> = raw
         .iter()
         .map(|f| FrameInput {
@@ -623,10 +611,7 @@ pub fn write_json(path: impl AsRef<Path>, analysis: &Analysis) -> Result<()> {
 
 /// Writes PNG time series of the main metrics into `dir` (`diameters.png`, `shape.png`,
 /// `inclination.png`, `area_volume.png`, `velocity.png`); returns the files written.
-pub fn plot_time_series(
-    dir: impl AsRef<Path>,
-    analysis: &Analysis,
-) -> Result<Vec<std::path::PathBuf>> {
+pub fn plot_time_series(dir: impl AsRef<Path>, analysis: &Analysis) -> Result<Vec<std::path::PathBuf>> {
     use crate::plot::{line_chart, Series};
     let dir = dir.as_ref();
     std::fs::create_dir_all(dir).map_err(|e| IoError::fs(dir, e))?;

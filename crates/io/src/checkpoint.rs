@@ -15,8 +15,7 @@ use hdf5::H5Type;
 
 use crate::error::{IoError, Result};
 use crate::h5util::{
-    fsync_path, get_attr, get_attr_str, get_attr_str_opt, parent_dir, set_attr, set_attr_str,
-    with_suffix,
+    fsync_path, get_attr, get_attr_str, get_attr_str_opt, parent_dir, set_attr, set_attr_str, with_suffix,
 };
 
 /// Value of the root `format` attribute of a checkpoint file.
@@ -176,10 +175,7 @@ impl Checkpoint {
     fn wrong_type(&self, name: &str, want: &str, arr: &NamedArray) -> IoError {
         IoError::invalid(
             &self.path_for_errors(),
-            format!(
-                "/arrays/{name} holds {} values, expected {want}",
-                arr.data.type_name()
-            ),
+            format!("/arrays/{name} holds {} values, expected {want}", arr.data.type_name()),
         )
     }
 
@@ -224,9 +220,7 @@ impl Checkpoint {
     /// An `(n, 3)` f64 array as vectors; `expected_len` (if given) must match n.
     pub fn vec3s(&self, name: &str, expected_len: Option<usize>) -> Result<Vec<DVec3>> {
         let a = self.array(name)?;
-        let ok = a.shape.len() == 2
-            && a.shape[1] == 3
-            && expected_len.is_none_or(|n| n == a.shape[0]);
+        let ok = a.shape.len() == 2 && a.shape[1] == 3 && expected_len.is_none_or(|n| n == a.shape[0]);
         if !ok {
             return Err(IoError::Shape {
                 path: self.path_for_errors(),
@@ -239,9 +233,7 @@ impl Checkpoint {
             });
         }
         let v = self.f64s(name)?;
-        Ok(v.chunks_exact(3)
-            .map(|c| DVec3::new(c[0], c[1], c[2]))
-            .collect())
+        Ok(v.chunks_exact(3).map(|c| DVec3::new(c[0], c[1], c[2])).collect())
     }
 
     /// A scalar by name.
@@ -254,10 +246,7 @@ impl Checkpoint {
     }
 
     fn scalar_type_error(&self, name: &str, want: &str) -> IoError {
-        IoError::invalid(
-            &self.path_for_errors(),
-            format!("/scalars@{name} is not {want}"),
-        )
+        IoError::invalid(&self.path_for_errors(), format!("/scalars@{name} is not {want}"))
     }
 
     pub fn scalar_f64(&self, name: &str) -> Result<f64> {
@@ -406,12 +395,8 @@ impl Checkpoint {
                 dataset: "/arrays".to_string(),
             });
         }
-        let arrays = file
-            .group("arrays")
-            .map_err(|e| IoError::hdf5(path, "/arrays", e))?;
-        let names = arrays
-            .member_names()
-            .map_err(|e| IoError::hdf5(path, "/arrays", e))?;
+        let arrays = file.group("arrays").map_err(|e| IoError::hdf5(path, "/arrays", e))?;
+        let names = arrays.member_names().map_err(|e| IoError::hdf5(path, "/arrays", e))?;
         for name in names {
             let full = format!("/arrays/{name}");
             let err = |e| IoError::hdf5(path, full.as_str(), e);
@@ -441,13 +426,8 @@ impl Checkpoint {
             ck.arrays.insert(name, NamedArray { shape, data });
         }
         if file.link_exists("scalars") {
-            let g = file
-                .group("scalars")
-                .map_err(|e| IoError::hdf5(path, "/scalars", e))?;
-            for name in g
-                .attr_names()
-                .map_err(|e| IoError::hdf5(path, "/scalars", e))?
-            {
+            let g = file.group("scalars").map_err(|e| IoError::hdf5(path, "/scalars", e))?;
+            for name in g.attr_names().map_err(|e| IoError::hdf5(path, "/scalars", e))? {
                 let full = format!("/scalars@{name}");
                 let desc = g
                     .attr(&name)
@@ -486,9 +466,7 @@ impl Checkpoint {
                 return Some(format!("array `{name}`: shapes differ"));
             }
             let same = match (&a.data, &b.data) {
-                (ArrayData::F64(x), ArrayData::F64(y)) => {
-                    x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits())
-                }
+                (ArrayData::F64(x), ArrayData::F64(y)) => x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits()),
                 (x, y) => x == y,
             };
             if !same {
@@ -512,12 +490,7 @@ impl Checkpoint {
     }
 }
 
-fn write_array<T: H5Type>(
-    group: &hdf5::Group,
-    name: &str,
-    shape: &[usize],
-    data: &[T],
-) -> hdf5::Result<()> {
+fn write_array<T: H5Type>(group: &hdf5::Group, name: &str, shape: &[usize], data: &[T]) -> hdf5::Result<()> {
     let view = ndarray::ArrayViewD::from_shape(ndarray::IxDyn(shape), data)
         .map_err(|e| hdf5::Error::from(e.to_string().as_str()))?;
     let mut b = group.new_dataset_builder().with_data(view);
@@ -532,4 +505,3 @@ fn write_array<T: H5Type>(
     b.create(name)?;
     Ok(())
 }
-

@@ -16,12 +16,7 @@ fn replace_attr(loc: &Location, name: &str) -> hdf5::Result<()> {
 }
 
 fn object_name(loc: &Location, name: &str) -> String {
-    let base = loc.name();
-    if base.ends_with('/') {
-        format!("{base}@{name}")
-    } else {
-        format!("{base}@{name}")
-    }
+    format!("{}@{name}", loc.name())
 }
 
 /// Writes (or replaces) a scalar attribute.
@@ -34,12 +29,7 @@ pub(crate) fn set_attr<T: H5Type>(path: &Path, loc: &Location, name: &str, value
 }
 
 /// Writes (or replaces) a 1-D array attribute.
-pub(crate) fn set_attr_array<T: H5Type>(
-    path: &Path,
-    loc: &Location,
-    name: &str,
-    value: &[T],
-) -> Result<()> {
+pub(crate) fn set_attr_array<T: H5Type>(path: &Path, loc: &Location, name: &str, value: &[T]) -> Result<()> {
     let run = || -> hdf5::Result<()> {
         replace_attr(loc, name)?;
         loc.new_attr_builder().with_data(value).create(name)?;
@@ -51,12 +41,8 @@ pub(crate) fn set_attr_array<T: H5Type>(
 /// Writes (or replaces) a UTF-8 string attribute (variable length, read by h5py as `str`).
 pub(crate) fn set_attr_str(path: &Path, loc: &Location, name: &str, value: &str) -> Result<()> {
     // HDF5 strings end at NUL: refuse them rather than silently cut the text.
-    let v = VarLenUnicode::from_str(value).map_err(|e| {
-        IoError::invalid(
-            path,
-            format!("attribute `{}`: {e}", object_name(loc, name)),
-        )
-    })?;
+    let v = VarLenUnicode::from_str(value)
+        .map_err(|e| IoError::invalid(path, format!("attribute `{}`: {e}", object_name(loc, name))))?;
     set_attr(path, loc, name, v)
 }
 

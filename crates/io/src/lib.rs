@@ -23,7 +23,7 @@ pub mod xdmf;
 
 pub use error::{IoError, Result};
 pub use trajectory::{
-    FieldFrame, FieldInfo, FluidFrame, FrameScalar, GridSpec, MembraneFrame, MetaValue,
-    RunMetadata, TrajectoryReader, TrajectoryWriter, WriterOptions,
+    FieldFrame, FieldInfo, FluidFrame, FrameScalar, GridSpec, MembraneFrame, MetaValue, RunMetadata, TrajectoryReader,
+    TrajectoryWriter, WriterOptions,
 };
 pub use units::{Quantity, UnitSystem};

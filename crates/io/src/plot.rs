@@ -90,6 +90,17 @@ pub struct ChartOptions {
     pub height: u32,
     pub x_range: Option<(f64, f64)>,
     pub y_range: Option<(f64, f64)>,
+    /// Where the legend goes (`None`: no legend).
+    pub legend: Option<LegendPosition>,
+}
+
+/// Legend corner.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LegendPosition {
+    UpperLeft,
+    UpperRight,
+    LowerLeft,
+    LowerRight,
 }
 
 impl Default for ChartOptions {
@@ -99,6 +110,7 @@ impl Default for ChartOptions {
             height: 600,
             x_range: None,
             y_range: None,
+            legend: Some(LegendPosition::UpperRight),
         }
     }
 }
@@ -116,13 +128,7 @@ const PALETTE: [(u8, u8, u8); 8] = [
 ];
 
 /// Draws `series` into a PNG at `path` with a legend and automatic ranges.
-pub fn line_chart(
-    path: impl AsRef<Path>,
-    title: &str,
-    x_label: &str,
-    y_label: &str,
-    series: &[Series],
-) -> Result<()> {
+pub fn line_chart(path: impl AsRef<Path>, title: &str, x_label: &str, y_label: &str, series: &[Series]) -> Result<()> {
     line_chart_with(path, title, x_label, y_label, series, &ChartOptions::default())
 }
 
@@ -153,23 +159,13 @@ pub fn line_chart_with(
             if e.len() != s.points.len() {
                 return Err(IoError::Plot {
                     path: path.to_path_buf(),
-                    message: format!(
-                        "series `{}`: {} errors for {} points",
-                        s.name,
-                        e.len(),
-                        s.points.len()
-                    ),
+                    message: format!("series `{}`: {} errors for {} points", s.name, e.len(), s.points.len()),
                 });
             }
         }
     }
     let finite = |p: &(f64, f64)| p.0.is_finite() && p.1.is_finite();
-    let (mut x0, mut x1, mut y0, mut y1) = (
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-        f64::INFINITY,
-        f64::NEG_INFINITY,
-    );
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
     for s in series {
         for (i, p) in s.points.iter().enumerate() {
             if !finite(p) {
@@ -259,14 +255,22 @@ pub fn line_chart_with(
             chart.draw_series(bars).map_err(|e| err(&e))?;
         }
     }
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 16))
-        .position(SeriesLabelPosition::UpperRight)
-        .draw()
-        .map_err(|e| err(&e))?;
+    if let Some(pos) = options.legend {
+        let pos = match pos {
+            LegendPosition::UpperLeft => SeriesLabelPosition::UpperLeft,
+            LegendPosition::UpperRight => SeriesLabelPosition::UpperRight,
+            LegendPosition::LowerLeft => SeriesLabelPosition::LowerLeft,
+            LegendPosition::LowerRight => SeriesLabelPosition::LowerRight,
+        };
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 16))
+            .position(pos)
+            .draw()
+            .map_err(|e| err(&e))?;
+    }
     root.present().map_err(|e| err(&e))?;
     Ok(())
 }

@@ -47,13 +47,7 @@ impl Progress {
     /// A reporter for a run from `start_step` (non-zero after a resume) to `total_steps`.
     /// Simulated times passed to [`update`](Self::update) are multiplied by `time_scale` and
     /// shown with `time_unit`.
-    pub fn new(
-        total_steps: u64,
-        start_step: u64,
-        mode: ProgressMode,
-        time_scale: f64,
-        time_unit: &str,
-    ) -> Self {
+    pub fn new(total_steps: u64, start_step: u64, mode: ProgressMode, time_scale: f64, time_unit: &str) -> Self {
         let tty = std::io::stderr().is_terminal();
         let (bar, log) = match mode {
             ProgressMode::Auto if tty => (true, false),
@@ -63,10 +57,9 @@ impl Progress {
         };
         let bar = bar.then(|| {
             let pb = ProgressBar::with_draw_target(Some(total_steps), ProgressDrawTarget::stderr());
-            let style = ProgressStyle::with_template(
-                "{bar:30.cyan/blue} {pos}/{len} steps  {msg}  {per_sec}  ETA {eta}",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar());
+            let style =
+                ProgressStyle::with_template("{bar:30.cyan/blue} {pos}/{len} steps  {msg}  {per_sec}  ETA {eta}")
+                    .unwrap_or_else(|_| ProgressStyle::default_bar());
             pb.set_style(style);
             pb.set_position(start_step);
             pb
@@ -79,7 +72,7 @@ impl Progress {
             start_step,
             started: now,
             last_log: now,
-            last_decile: if total_steps > 0 { start_step * 10 / total_steps } else { 0 },
+            last_decile: (start_step * 10).checked_div(total_steps).unwrap_or(0),
             log_interval: Duration::from_secs(60),
             time_unit: time_unit.to_string(),
             time_scale,
@@ -121,13 +114,9 @@ impl Progress {
     pub fn update(&mut self, step: u64, sim_time: f64) {
         if let Some(bar) = &self.bar {
             bar.set_position(step);
-            bar.set_message(format!(
-                "t = {:.4e} {}",
-                sim_time * self.time_scale,
-                self.time_unit
-            ));
+            bar.set_message(format!("t = {:.4e} {}", sim_time * self.time_scale, self.time_unit));
         } else if self.log {
-            let decile = if self.total > 0 { step * 10 / self.total } else { 10 };
+            let decile = (step * 10).checked_div(self.total).unwrap_or(10);
             if decile > self.last_decile || self.last_log.elapsed() >= self.log_interval {
                 self.last_decile = decile;
                 self.last_log = Instant::now();

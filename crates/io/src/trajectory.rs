@@ -16,8 +16,8 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{IoError, Result};
 use crate::h5util::{
-    dataset, expect_shape, get_attr, get_attr_array, get_attr_opt, get_attr_str, get_attr_str_opt,
-    link_exists, set_attr, set_attr_array, set_attr_str,
+    dataset, expect_shape, get_attr, get_attr_array, get_attr_opt, get_attr_str, get_attr_str_opt, link_exists,
+    set_attr, set_attr_array, set_attr_str,
 };
 use crate::units::{Quantity, UnitSystem};
 
@@ -131,7 +131,9 @@ pub struct WriterOptions {
     pub deflate: Option<u8>,
     /// Write `FILE.xmf` beside `FILE.h5` for ParaView.
     pub xdmf: bool,
-    /// Regenerate the XDMF file at most this often while appending (always at close).
+    /// Regenerate the XDMF file at most this often while appending (always at close); the gap
+    /// also grows to 20× the time a rewrite takes, so long runs spend under 5 % on it. Zero
+    /// rewrites after every frame.
     pub xdmf_interval: Duration,
 }
 
@@ -153,6 +155,8 @@ pub struct TrajectoryWriter {
     units: UnitSystem,
     options: WriterOptions,
     last_xdmf: Option<Instant>,
+    /// Wall time the last XDMF rewrite took: rewrites are spaced to keep them under ~5 %.
+    xdmf_cost: Duration,
     xdmf_dirty: bool,
 }
 
@@ -167,11 +171,7 @@ impl TrajectoryWriter {
     }
 
     /// [`create`](Self::create) with options.
-    pub fn create_with(
-        path: impl AsRef<Path>,
-        meta: &RunMetadata,
-        options: WriterOptions,
-    ) -> Result<Self> {
+    pub fn create_with(path: impl AsRef<Path>, meta: &RunMetadata, options: WriterOptions) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
         let file = hdf5::File::create(&path).map_err(|source| IoError::Open {
             path: path.clone(),
@@ -186,6 +186,7 @@ impl TrajectoryWriter {
             units: meta.units.clone(),
             options,
             last_xdmf: None,
+            xdmf_cost: Duration::ZERO,
             xdmf_dirty: true,
         })
     }
@@ -198,11 +199,7 @@ impl TrajectoryWriter {
     }
 
     /// [`open_append`](Self::open_append) with options.
-    pub fn open_append_with(
-        path: impl AsRef<Path>,
-        truncate_after_step: u64,
-        options: WriterOptions,
-    ) -> Result<Self> {
+    pub fn open_append_with(path: impl AsRef<Path>, truncate_after_step: u64, options: WriterOptions) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
         let file = hdf5::File::open_rw(&path).map_err(|source| IoError::Open {
             path: path.clone(),
@@ -226,10 +223,7 @@ impl TrajectoryWriter {
                 0
             } else {
                 let steps: Vec<u64> = read_rows(&path, &group, "step", 0, frames)?;
-                steps
-                    .iter()
-                    .position(|&s| s > truncate_after_step)
-                    .unwrap_or(frames)
+                steps.iter().position(|&s| s > truncate_after_step).unwrap_or(frames)
             };
             truncate_group(&path, &group, keep)?;
         }
@@ -240,6 +234,7 @@ impl TrajectoryWriter {
             units: meta.units,
             options,
             last_xdmf: None,
+            xdmf_cost: Duration::ZERO,
             xdmf_dirty: true,
         })
     }
@@ -277,9 +272,7 @@ impl TrajectoryWriter {
         let name = "/membrane/triangles";
         if group.link_exists("triangles") {
             let ds = dataset(&self.path, &group, "triangles")?;
-            let old: Vec<u32> = ds
-                .read_raw()
-                .map_err(|e| IoError::hdf5(&self.path, name, e))?;
+            let old: Vec<u32> = ds.read_raw().map_err(|e| IoError::hdf5(&self.path, name, e))?;
             let new: Vec<u32> = triangles.iter().flatten().copied().collect();
             if old != new {
                 return Err(IoError::invalid(
@@ -334,11 +327,24 @@ impl TrajectoryWriter {
         velocities: Option<&[DVec3]>,
         scalars: &[FrameScalar],
     ) -> Result<()> {
+        for sc in scalars {
+            if sc.name.is_empty() || sc.name.contains('/') {
+                return Err(IoError::invalid(&self.path, format!("bad scalar name `{}`", sc.name)));
+            }
+        }
         let group = self.group(MEMBRANE)?;
         let frame = self.begin_frame(&group, MEMBRANE, step)?;
         let n = positions.len();
         if n == 0 {
             return Err(IoError::invalid(&self.path, "membrane frame without vertices"));
+        }
+        if let Some(v) = velocities {
+            if v.len() != n {
+                return Err(IoError::invalid(
+                    &self.path,
+                    format!("membrane velocities: {} for {n} vertices", v.len()),
+                ));
+            }
         }
         if let Some(nv) = get_attr_opt::<u64>(&self.path, &group, "n_vertices")? {
             if nv as usize != n {
@@ -364,12 +370,6 @@ impl TrajectoryWriter {
         let len = self.units.to_si(Quantity::Length);
         self.append_vec3(&group, "positions", frame, positions, len, Quantity::Length)?;
         if let Some(v) = velocities {
-            if v.len() != n {
-                return Err(IoError::invalid(
-                    &self.path,
-                    format!("membrane velocities: {} for {n} vertices", v.len()),
-                ));
-            }
             let s = self.units.to_si(Quantity::Velocity);
             self.append_vec3(&group, "velocities", frame, v, s, Quantity::Velocity)?;
         }
@@ -381,19 +381,14 @@ impl TrajectoryWriter {
             }
             .map_err(|e| IoError::hdf5(&self.path, "/membrane/scalars", e))?;
             for sc in scalars {
-                if sc.name.is_empty() || sc.name.contains('/') {
-                    return Err(IoError::invalid(
-                        &self.path,
-                        format!("bad scalar name `{}`", sc.name),
-                    ));
-                }
                 let si = sc.value * self.units.to_si(sc.quantity);
                 self.append_rows(&sg, sc.name, frame, &[], &[si], Some(sc.quantity), true)?;
             }
             // Scalars not given in this frame read NaN (the datasets' fill value).
-            for name in sg.member_names().map_err(|e| {
-                IoError::hdf5(&self.path, "/membrane/scalars", e)
-            })? {
+            for name in sg
+                .member_names()
+                .map_err(|e| IoError::hdf5(&self.path, "/membrane/scalars", e))?
+            {
                 if !scalars.iter().any(|s| s.name == name) {
                     let ds = dataset(&self.path, &sg, &name)?;
                     resize_first(&self.path, &ds, frame + 1)?;
@@ -419,35 +414,27 @@ impl TrajectoryWriter {
         if n == 0 {
             return Err(IoError::invalid(&self.path, "fluid frame without particles"));
         }
-        if frame > 0 {
-            if group.link_exists("velocities") != velocities.is_some()
-                || group.link_exists("types") != types.is_some()
-            {
-                return Err(IoError::invalid(
-                    &self.path,
-                    format!("fluid frame at step {step}: velocities/types differ from earlier frames"),
-                ));
-            }
+        let consistent =
+            group.link_exists("velocities") == velocities.is_some() && group.link_exists("types") == types.is_some();
+        if frame > 0 && !consistent {
+            return Err(IoError::invalid(
+                &self.path,
+                format!("fluid frame at step {step}: velocities/types differ from earlier frames"),
+            ));
+        }
+        if velocities.is_some_and(|v| v.len() != n) || types.is_some_and(|t| t.len() != n) {
+            return Err(IoError::invalid(
+                &self.path,
+                format!("fluid frame at step {step}: velocities or types not one per particle ({n})"),
+            ));
         }
         let len = self.units.to_si(Quantity::Length);
         self.append_vec3(&group, "positions", frame, positions, len, Quantity::Length)?;
         if let Some(v) = velocities {
-            if v.len() != n {
-                return Err(IoError::invalid(
-                    &self.path,
-                    format!("fluid velocities: {} for {n} particles", v.len()),
-                ));
-            }
             let s = self.units.to_si(Quantity::Velocity);
             self.append_vec3(&group, "velocities", frame, v, s, Quantity::Velocity)?;
         }
         if let Some(t) = types {
-            if t.len() != n {
-                return Err(IoError::invalid(
-                    &self.path,
-                    format!("fluid types: {} for {n} particles", t.len()),
-                ));
-            }
             self.append_rows(&group, "types", frame, &[n], t, None, false)?;
         }
         self.end_frame(&group, frame, step, time)
@@ -507,7 +494,15 @@ impl TrajectoryWriter {
         let scale = self.units.to_si(quantity);
         let si: Vec<f64> = values.iter().map(|v| v * scale).collect();
         let [nx, ny, nz] = grid.shape;
-        self.append_rows(&group, "values", frame, &[nz, ny, nx, components], &si, Some(quantity), false)?;
+        self.append_rows(
+            &group,
+            "values",
+            frame,
+            &[nz, ny, nx, components],
+            &si,
+            Some(quantity),
+            false,
+        )?;
         self.end_frame(&group, frame, step, time)
     }
 
@@ -517,7 +512,9 @@ impl TrajectoryWriter {
         if !file.link_exists(MEMBRANE) {
             return Ok(0);
         }
-        let g = file.group(MEMBRANE).map_err(|e| IoError::hdf5(&self.path, MEMBRANE, e))?;
+        let g = file
+            .group(MEMBRANE)
+            .map_err(|e| IoError::hdf5(&self.path, MEMBRANE, e))?;
         frames_of(&self.path, &g)
     }
 
@@ -528,7 +525,9 @@ impl TrajectoryWriter {
         if !file.link_exists(MEMBRANE) {
             return Ok(None);
         }
-        let g = file.group(MEMBRANE).map_err(|e| IoError::hdf5(&self.path, MEMBRANE, e))?;
+        let g = file
+            .group(MEMBRANE)
+            .map_err(|e| IoError::hdf5(&self.path, MEMBRANE, e))?;
         last_step(&self.path, &g)
     }
 
@@ -541,7 +540,9 @@ impl TrajectoryWriter {
     /// Writes the XDMF companion file now.
     pub fn write_xdmf(&mut self) -> Result<PathBuf> {
         let file = self.file()?;
+        let started = Instant::now();
         let out = crate::xdmf::write_xdmf_for(&self.path, file)?;
+        self.xdmf_cost = started.elapsed();
         self.last_xdmf = Some(Instant::now());
         self.xdmf_dirty = false;
         Ok(out)
@@ -588,9 +589,7 @@ impl TrajectoryWriter {
         self.flush()?;
         self.xdmf_dirty = true;
         if self.options.xdmf {
-            let due = self
-                .last_xdmf
-                .is_none_or(|t| t.elapsed() >= self.options.xdmf_interval);
+            let due = self.last_xdmf.is_none_or(|t| t.elapsed() >= self.options.xdmf_interval);
             if due {
                 self.write_xdmf()?;
             }
@@ -654,10 +653,7 @@ impl TrajectoryWriter {
             if nan_fill {
                 b = b.fill_value(f64::NAN);
             }
-            let ds = b
-                .shape(SimpleExtents::from_vec(extents))
-                .create(name)
-                .map_err(err)?;
+            let ds = b.shape(SimpleExtents::from_vec(extents)).create(name).map_err(err)?;
             if let Some(q) = quantity {
                 set_attr_str(&self.path, &ds, "units", q.si_units())?;
                 set_attr(&self.path, &ds, "model_to_si", self.units.to_si(q))?;
@@ -700,8 +696,7 @@ fn last_step(path: &Path, group: &hdf5::Group) -> Result<Option<u64>> {
     if frames == 0 {
         return Ok(None);
     }
-    let v: Vec<u64> = read_rows(path, group, "step", frames - 1, frames)?;
-    Ok(v.first().copied())
+    read_one::<u64>(path, group, "step", frames - 1).map(Some)
 }
 
 /// Complete frames of a group: its `frames` attribute, capped by the lengths of its per-frame
@@ -744,6 +739,14 @@ fn truncate_group(path: &Path, group: &hdf5::Group, keep: usize) -> Result<()> {
         }
     }
     set_attr(path, group, "frames", keep as u64)
+}
+
+/// Reads the single value of row `i` of a 1-D per-frame dataset.
+fn read_one<T: H5Type + Copy>(path: &Path, group: &hdf5::Group, name: &str, i: usize) -> Result<T> {
+    read_rows::<T>(path, group, name, i, i + 1)?
+        .first()
+        .copied()
+        .ok_or_else(|| IoError::invalid(path, format!("{}/{name}: row {i} is empty", group.name())))
 }
 
 /// Reads rows `[start, end)` of a per-frame dataset, flattened.
@@ -923,9 +926,7 @@ pub struct TrajectoryReader {
 }
 
 fn to_vec3(flat: &[f64]) -> Vec<DVec3> {
-    flat.chunks_exact(3)
-        .map(|c| DVec3::new(c[0], c[1], c[2]))
-        .collect()
+    flat.chunks_exact(3).map(|c| DVec3::new(c[0], c[1], c[2])).collect()
 }
 
 impl TrajectoryReader {
@@ -967,9 +968,7 @@ impl TrajectoryReader {
                 dataset: name.to_string(),
             });
         }
-        self.file
-            .group(name)
-            .map_err(|e| IoError::hdf5(&self.path, name, e))
+        self.file.group(name).map_err(|e| IoError::hdf5(&self.path, name, e))
     }
 
     fn frames(&self, group: &str) -> Result<usize> {
@@ -1000,9 +999,7 @@ impl TrajectoryReader {
         let name = "/membrane/triangles";
         let ds = dataset(&self.path, &self.file, name)?;
         expect_shape(&self.path, &ds, "(n_triangles, 3)", |s| s.len() == 2 && s[1] == 3)?;
-        let flat: Vec<u32> = ds
-            .read_raw()
-            .map_err(|e| IoError::hdf5(&self.path, name, e))?;
+        let flat: Vec<u32> = ds.read_raw().map_err(|e| IoError::hdf5(&self.path, name, e))?;
         Ok(flat.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
     }
 
@@ -1044,8 +1041,8 @@ impl TrajectoryReader {
         } else {
             None
         };
-        let step = read_rows::<u64>(&self.path, &g, "step", i, i + 1)?[0];
-        let time = read_rows::<f64>(&self.path, &g, "time", i, i + 1)?[0];
+        let step = read_one::<u64>(&self.path, &g, "step", i)?;
+        let time = read_one::<f64>(&self.path, &g, "time", i)?;
         Ok(MembraneFrame {
             step,
             time,
@@ -1112,8 +1109,8 @@ impl TrajectoryReader {
             None
         };
         Ok(FluidFrame {
-            step: read_rows::<u64>(&self.path, &g, "step", i, i + 1)?[0],
-            time: read_rows::<f64>(&self.path, &g, "time", i, i + 1)?[0],
+            step: read_one::<u64>(&self.path, &g, "step", i)?,
+            time: read_one::<f64>(&self.path, &g, "time", i)?,
             positions,
             velocities,
             types,
@@ -1140,7 +1137,12 @@ impl TrajectoryReader {
             ));
         }
         let ds = dataset(&self.path, &g, "values")?;
-        let expected = [shape[2] as usize, shape[1] as usize, shape[0] as usize, components as usize];
+        let expected = [
+            shape[2] as usize,
+            shape[1] as usize,
+            shape[0] as usize,
+            components as usize,
+        ];
         expect_shape(&self.path, &ds, &format!("(frames, {expected:?})"), |s| {
             s.len() == 5 && s[1..] == expected
         })?;
@@ -1164,8 +1166,8 @@ impl TrajectoryReader {
         self.field_info(name)?;
         let g = self.check_frame(&gname, i)?;
         Ok(FieldFrame {
-            step: read_rows::<u64>(&self.path, &g, "step", i, i + 1)?[0],
-            time: read_rows::<f64>(&self.path, &g, "time", i, i + 1)?[0],
+            step: read_one::<u64>(&self.path, &g, "step", i)?,
+            time: read_one::<f64>(&self.path, &g, "time", i)?,
             values: read_rows(&self.path, &g, "values", i, i + 1)?,
         })
     }

@@ -35,11 +35,7 @@ pub(crate) fn write_xdmf_for(h5_path: &Path, file: &hdf5::File) -> Result<PathBu
 }
 
 fn dims(shape: &[usize]) -> String {
-    shape
-        .iter()
-        .map(|d| d.to_string())
-        .collect::<Vec<_>>()
-        .join(" ")
+    shape.iter().map(|d| d.to_string()).collect::<Vec<_>>().join(" ")
 }
 
 fn xml_escape(s: &str) -> String {
@@ -95,10 +91,20 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File) -> Result<String> {
 
     // Membrane surface.
     if link_exists(file, "/membrane/triangles") && link_exists(file, "/membrane/positions") {
-        let g = file.group("/membrane").map_err(|e| IoError::hdf5(path, "/membrane", e))?;
+        let g = file
+            .group("/membrane")
+            .map_err(|e| IoError::hdf5(path, "/membrane", e))?;
         let frames = valid_frames(path, &g)?;
-        let times: Vec<f64> = if frames > 0 { read_rows(path, &g, "time", 0, frames)? } else { vec![] };
-        let steps: Vec<u64> = if frames > 0 { read_rows(path, &g, "step", 0, frames)? } else { vec![] };
+        let times: Vec<f64> = if frames > 0 {
+            read_rows(path, &g, "time", 0, frames)?
+        } else {
+            vec![]
+        };
+        let steps: Vec<u64> = if frames > 0 {
+            read_rows(path, &g, "step", 0, frames)?
+        } else {
+            vec![]
+        };
         let tri = dataset(path, file, "/membrane/triangles")?.shape();
         let pos = dataset(path, file, "/membrane/positions")?.shape();
         let vel = if g.link_exists("velocities") {
@@ -140,8 +146,16 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File) -> Result<String> {
     if link_exists(file, "/fluid/positions") {
         let g = file.group("/fluid").map_err(|e| IoError::hdf5(path, "/fluid", e))?;
         let frames = valid_frames(path, &g)?;
-        let times: Vec<f64> = if frames > 0 { read_rows(path, &g, "time", 0, frames)? } else { vec![] };
-        let steps: Vec<u64> = if frames > 0 { read_rows(path, &g, "step", 0, frames)? } else { vec![] };
+        let times: Vec<f64> = if frames > 0 {
+            read_rows(path, &g, "time", 0, frames)?
+        } else {
+            vec![]
+        };
+        let steps: Vec<u64> = if frames > 0 {
+            read_rows(path, &g, "step", 0, frames)?
+        } else {
+            vec![]
+        };
         let pos = dataset(path, file, "/fluid/positions")?.shape();
         let vel = g
             .link_exists("velocities")
@@ -200,8 +214,16 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File) -> Result<String> {
             }
             let vshape = dataset(path, &g, "values")?.shape();
             let frames = valid_frames(path, &g)?;
-            let times: Vec<f64> = if frames > 0 { read_rows(path, &g, "time", 0, frames)? } else { vec![] };
-            let steps: Vec<u64> = if frames > 0 { read_rows(path, &g, "step", 0, frames)? } else { vec![] };
+            let times: Vec<f64> = if frames > 0 {
+                read_rows(path, &g, "time", 0, frames)?
+            } else {
+                vec![]
+            };
+            let steps: Vec<u64> = if frames > 0 {
+                read_rows(path, &g, "step", 0, frames)?
+            } else {
+                vec![]
+            };
             let kind = match comps {
                 1 => "Scalar",
                 3 => "Vector",
@@ -241,7 +263,15 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File) -> Result<String> {
                     out,
                     "        <Attribute Name=\"{ename}\" AttributeType=\"{kind}\" Center=\"Cell\">"
                 );
-                hyperslab(&mut out, "          ", &h5name, &format!("{gname}/values"), &vshape, f, F64);
+                hyperslab(
+                    &mut out,
+                    "          ",
+                    &h5name,
+                    &format!("{gname}/values"),
+                    &vshape,
+                    f,
+                    F64,
+                );
                 out.push_str("        </Attribute>\n      </Grid>\n");
             }
             out.push_str("    </Grid>\n");

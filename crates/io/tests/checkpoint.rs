@@ -117,13 +117,19 @@ fn bad_checkpoints_give_clear_errors() {
     let foreign = dir.path().join("foreign.h5");
     {
         let f = hdf5::File::create(&foreign).unwrap();
-        f.new_dataset_builder().with_data(&[1.0f64, 2.0]).create("data").unwrap();
+        f.new_dataset_builder()
+            .with_data(&[1.0f64, 2.0])
+            .create("data")
+            .unwrap();
     }
     let e = Checkpoint::load(&foreign).unwrap_err();
     assert!(matches!(e, IoError::Foreign { .. }), "{e}");
     assert!(e.to_string().contains("not a hemodpd checkpoint file"), "{e}");
     let traj = dir.path().join("traj.h5");
-    hemodpd_io::TrajectoryWriter::create(&traj, &meta()).unwrap().close().unwrap();
+    hemodpd_io::TrajectoryWriter::create(&traj, &meta())
+        .unwrap()
+        .close()
+        .unwrap();
     let e = Checkpoint::load(&traj).unwrap_err();
     assert!(e.to_string().contains("hemodpd-trajectory"), "{e}");
 
@@ -133,7 +139,12 @@ fn bad_checkpoints_give_clear_errors() {
     {
         let f = hdf5::File::open_rw(&newer).unwrap();
         f.delete_attr("format_version").unwrap();
-        f.new_attr::<u32>().shape(()).create("format_version").unwrap().write_scalar(&99u32).unwrap();
+        f.new_attr::<u32>()
+            .shape(())
+            .create("format_version")
+            .unwrap()
+            .write_scalar(&99u32)
+            .unwrap();
     }
     let e = Checkpoint::load(&newer).unwrap_err();
     assert!(matches!(e, IoError::UnsupportedVersion { found: 99, .. }), "{e}");

@@ -47,8 +47,16 @@ fn round_trip_membrane_fluid_fields_in_si() {
             let step = 100 * f;
             let pos = frame_positions(&sphere, step);
             let vel: Vec<DVec3> = pos.iter().map(|p| *p * 0.1).collect();
-            let force = FrameScalar { name: "force", value: f as f64, quantity: Quantity::Force };
-            let extra = FrameScalar { name: "energy", value: 2.0, quantity: Quantity::Energy };
+            let force = FrameScalar {
+                name: "force",
+                value: f as f64,
+                quantity: Quantity::Force,
+            };
+            let extra = FrameScalar {
+                name: "energy",
+                value: 2.0,
+                quantity: Quantity::Energy,
+            };
             let scalars: Vec<FrameScalar> = if f == 2 { vec![force] } else { vec![force, extra] };
             w.append_membrane_frame(step, step as f64 * 0.01, &pos, Some(&vel), &scalars)
                 .unwrap();
@@ -57,11 +65,27 @@ fn round_trip_membrane_fluid_fields_in_si() {
                 w.append_fluid_frame(step, step as f64 * 0.01, &fp, Some(&fluid), Some(&types))
                     .unwrap();
                 let values: Vec<f64> = (0..grid.len() * 3).map(|i| i as f64 + f as f64).collect();
-                w.append_field("velocity", step, step as f64 * 0.01, &grid, 3, &values, Quantity::Velocity)
-                    .unwrap();
+                w.append_field(
+                    "velocity",
+                    step,
+                    step as f64 * 0.01,
+                    &grid,
+                    3,
+                    &values,
+                    Quantity::Velocity,
+                )
+                .unwrap();
                 let dens: Vec<f64> = (0..grid.len()).map(|i| 3.0 + i as f64).collect();
-                w.append_field("density", step, step as f64 * 0.01, &grid, 1, &dens, Quantity::NumberDensity)
-                    .unwrap();
+                w.append_field(
+                    "density",
+                    step,
+                    step as f64 * 0.01,
+                    &grid,
+                    1,
+                    &dens,
+                    Quantity::NumberDensity,
+                )
+                .unwrap();
             }
         }
         assert_eq!(w.membrane_frames().unwrap(), 5);
@@ -150,9 +174,17 @@ fn writer_rejects_inconsistent_frames() {
     w.write_mesh(&tri).unwrap();
     assert!(w.write_mesh(&tri[1..]).is_err());
     // A field with a wrong value count.
-    let grid = GridSpec { origin: DVec3::ZERO, spacing: DVec3::ONE, shape: [2, 2, 2] };
-    assert!(w.append_field("rho", 10, 0.1, &grid, 1, &[1.0; 7], Quantity::NumberDensity).is_err());
-    assert!(w.append_field("a/b", 10, 0.1, &grid, 1, &[1.0; 8], Quantity::NumberDensity).is_err());
+    let grid = GridSpec {
+        origin: DVec3::ZERO,
+        spacing: DVec3::ONE,
+        shape: [2, 2, 2],
+    };
+    assert!(w
+        .append_field("rho", 10, 0.1, &grid, 1, &[1.0; 7], Quantity::NumberDensity)
+        .is_err());
+    assert!(w
+        .append_field("a/b", 10, 0.1, &grid, 1, &[1.0; 8], Quantity::NumberDensity)
+        .is_err());
     w.append_membrane_frame(20, 0.2, &sphere, None, &[]).unwrap();
     w.close().unwrap();
     let r = TrajectoryReader::open(&path).unwrap();
@@ -165,17 +197,34 @@ fn writer_rejects_inconsistent_frames() {
 fn open_append_truncates_after_checkpoint_step() {
     let dir = tempfile::tempdir().unwrap();
     let (sphere, tri) = uv_sphere(4, 8);
-    let grid = GridSpec { origin: DVec3::ZERO, spacing: DVec3::ONE, shape: [2, 1, 1] };
+    let grid = GridSpec {
+        origin: DVec3::ZERO,
+        spacing: DVec3::ONE,
+        shape: [2, 1, 1],
+    };
     let write = |w: &mut TrajectoryWriter, steps: std::ops::Range<u64>| {
         for s in steps {
             let step = s * 10;
             let pos = frame_positions(&sphere, step);
-            let f = FrameScalar { name: "force", value: s as f64, quantity: Quantity::Force };
-            w.append_membrane_frame(step, step as f64, &pos, Some(&pos), &[f]).unwrap();
+            let f = FrameScalar {
+                name: "force",
+                value: s as f64,
+                quantity: Quantity::Force,
+            };
+            w.append_membrane_frame(step, step as f64, &pos, Some(&pos), &[f])
+                .unwrap();
             if s % 3 == 0 {
                 w.append_fluid_frame(step, step as f64, &pos, None, None).unwrap();
-                w.append_field("rho", step, step as f64, &grid, 1, &[s as f64, 1.0], Quantity::NumberDensity)
-                    .unwrap();
+                w.append_field(
+                    "rho",
+                    step,
+                    step as f64,
+                    &grid,
+                    1,
+                    &[s as f64, 1.0],
+                    Quantity::NumberDensity,
+                )
+                .unwrap();
             }
         }
     };
@@ -231,7 +280,10 @@ fn killed_writer_child() {
         return;
     };
     let (sphere, tri) = uv_sphere(4, 8);
-    let options = WriterOptions { xdmf: false, ..WriterOptions::default() };
+    let options = WriterOptions {
+        xdmf: false,
+        ..WriterOptions::default()
+    };
     let mut w = TrajectoryWriter::create_with(&path, &meta(), options).unwrap();
     w.write_mesh(&tri).unwrap();
     for s in 0..7u64 {
@@ -266,7 +318,8 @@ fn killed_writer_leaves_every_flushed_frame() {
     drop(r);
     // The killed file can be resumed and analysed.
     let mut w = TrajectoryWriter::open_append(&path, 4).unwrap();
-    w.append_membrane_frame(5, 5.0, &frame_positions(&sphere, 5), None, &[]).unwrap();
+    w.append_membrane_frame(5, 5.0, &frame_positions(&sphere, 5), None, &[])
+        .unwrap();
     w.close().unwrap();
     let r = TrajectoryReader::open(&path).unwrap();
     assert_eq!(r.membrane_steps().unwrap(), vec![0, 1, 2, 3, 4, 5]);

@@ -11,10 +11,18 @@
 //! Unit-agnostic: every number is in the caller's consistent system (µm, pN, pN·µm for the
 //! stretching driver). [`MembraneConstants::from_params`] converts the SI [`ModelParams`].
 //!
-//! The loops are serial, over links, triangles and link pairs, in a fixed order: results are
-//! deterministic. A call allocates nothing.
+//! [`MembraneModel::add_forces`] loops serially over links, triangles and link pairs in a fixed
+//! order: deterministic, no allocation. [`MembraneModel::add_forces_parallel`] is the rayon
+//! version for large meshes (per-element slots, then a per-vertex gather): bit-identical for
+//! any thread count.
+
+// `!(x < y)` is deliberate throughout: it is also true for NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod kernels;
+mod parallel;
+
+pub use parallel::ForceWorkspace;
 
 #[cfg(test)]
 mod tests;

@@ -3,7 +3,7 @@
 
 use crate::stretching::mills_2004;
 use glam::DVec3;
-use hemodpd_io::plot::{line_chart_with, ChartOptions, Series};
+use hemodpd_io::plot::{line_chart_with, ChartOptions, LegendPosition, Series};
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -93,12 +93,7 @@ pub fn stretching_chart(
         )
         .with_color(90, 90, 90),
     );
-    let opts = ChartOptions {
-        width: 1000,
-        height: 700,
-        x_range: Some((-5.0, 205.0)),
-        y_range: Some((2.0, 19.0)),
-    };
+    let opts = ChartOptions { width: 1000, height: 700, x_range: Some((-5.0, 205.0)), y_range: Some((0.0, 19.0)), legend: Some(LegendPosition::LowerLeft) };
     line_chart_with(
         path,
         title,

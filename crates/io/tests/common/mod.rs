@@ -57,14 +57,7 @@ pub fn ellipsoid(unit: &[DVec3], abc: DVec3, angle: f64, center: DVec3) -> Vec<D
 
 /// The regular octahedron with vertices at ±x, ±y, ±z (outward triangles).
 pub fn octahedron() -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let v = vec![
-        DVec3::X,
-        -DVec3::X,
-        DVec3::Y,
-        -DVec3::Y,
-        DVec3::Z,
-        -DVec3::Z,
-    ];
+    let v = vec![DVec3::X, -DVec3::X, DVec3::Y, -DVec3::Y, DVec3::Z, -DVec3::Z];
     let mut t = vec![
         [0, 2, 4],
         [2, 1, 4],
@@ -98,12 +91,7 @@ pub fn units() -> UnitSystem {
 }
 
 pub fn meta() -> RunMetadata {
-    RunMetadata::new(
-        "test",
-        "[scenario]\nname = \"test\"\nsteps = 100\n",
-        42,
-        units(),
-    )
+    RunMetadata::new("test", "[scenario]\nname = \"test\"\nsteps = 100\n", 42, units())
 }
 
 /// Deterministic pseudo-random numbers in [-1, 1) (xorshift), for test data.

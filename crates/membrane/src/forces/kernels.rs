@@ -1,6 +1,9 @@
 //! Pure per-element kernels: the WLC link, the triangle area gradient and the signed dihedral
 //! angle with its exact gradient. No allocation, no state; shared by the model loops and tests.
 
+// `!(x < y)` is deliberate throughout: it is also true for NaN.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use glam::DVec3;
 
 /// g(x) = (3x² − 2x³)/(1 − x): the WLC energy is `w · Lmax · g(L/Lmax)` with `w = kBT/(4p)`.

@@ -598,17 +598,20 @@ fn moduli_of_a_flat_patch_match_eqs_10_11() {
         let k_eq = params.area_modulus_n_per_m * 1e6;
         let y = 4.0 * k * mu / (k + mu);
         println!(
-            "N = {n:5}: measured mu0 = {mu:.4} pN/um (Eq. 10: {mu_eq:.4}, ratio {:.5}), K = {k:.4} pN/um (Eq. 11: {k_eq:.4}, ratio {:.5}), Y = {y:.4}, tension at rest {tension:.1e} pN/um, max vertex force {fres:.1e} pN",
-            mu / mu_eq,
-            k / k_eq
+            "N = {n:5}: measured mu0 = {mu:.4} pN/um (Eq. 10: {mu_eq:.4}, ratio - 1 = {:.1e}), K = {k:.4} pN/um (Eq. 11: {k_eq:.4}, ratio - 1 = {:.1e}), Y = {y:.4}, tension at rest {tension:.1e} pN/um, max vertex force {fres:.1e} pN",
+            mu / mu_eq - 1.0,
+            k / k_eq - 1.0
         );
         // Eq. 4 makes the patch tension-free, and a Bravais lattice has no non-affine relaxation.
         // The central difference (W(ε) − W(−ε))/(2ε) carries an O(K ε²) = 2e-7 pN/µm
         // truncation error from the cubic term of W: bound it by 10 K ε².
         assert!(tension.abs() < 10.0 * k * 1e-8, "tension {tension}");
         assert!(fres < 1e-10, "net vertex force {fres}");
-        assert!((mu / mu_eq - 1.0).abs() < 0.05, "mu {mu} vs {mu_eq}");
-        assert!((k / k_eq - 1.0).abs() < 0.05, "K {k} vs {k_eq}");
+        // the symmetrised second difference is exact to O(ε²) = 1e-8; round-off of the
+        // energy (~1e-14 relative, E/(A μ ε²) ~ 1e8 amplification) adds ~1e-6: assert 1e-4
+        // (Eqs. 10–11 hold exactly for this lattice, the brief asked for 5 %)
+        assert!((mu / mu_eq - 1.0).abs() < 1e-4, "mu {mu} vs {mu_eq}");
+        assert!((k / k_eq - 1.0).abs() < 1e-4, "K {k} vs {k_eq}");
     }
 }
 
@@ -753,22 +756,154 @@ fn timing_add_forces() {
         let y: Vec<DVec3> = x.iter().map(|p| *p + 0.02 * c.l0 * rng.vec()).collect();
         let mut f = vec![DVec3::ZERO; x.len()];
         let reps = (2_000_000 / x.len()).max(5);
+        // CPU time of this thread (ns), robust to a loaded machine; falls back to wall time
+        let cpu_ns = || {
+            std::fs::read_to_string("/proc/thread-self/schedstat")
+                .ok()
+                .and_then(|s| s.split_whitespace().next().and_then(|v| v.parse::<f64>().ok()))
+        };
         let t = std::time::Instant::now();
+        let c0 = cpu_ns();
         for _ in 0..reps {
             model.add_forces(&y, &mut f).unwrap();
         }
-        let dt = t.elapsed().as_secs_f64() / reps as f64;
+        let dt = match (c0, cpu_ns()) {
+            (Some(a), Some(b)) => (b - a) * 1e-9,
+            _ => t.elapsed().as_secs_f64(),
+        } / reps as f64;
+        let mut ws = model.workspace();
+        let t = std::time::Instant::now();
+        for _ in 0..reps {
+            model.add_forces_parallel(&y, &mut f, &mut ws).unwrap();
+        }
+        let dp = t.elapsed().as_secs_f64() / reps as f64;
         let t = std::time::Instant::now();
         for _ in 0..reps {
             std::hint::black_box(model.energy(&y).unwrap());
         }
         let de = t.elapsed().as_secs_f64() / reps as f64;
         println!(
-            "N = {:6}: add_forces {:8.1} us ({:.0} ns/vertex), energy {:8.1} us",
+            "N = {:6}: add_forces {:8.1} us CPU ({:.0} ns/vertex), add_forces_parallel ({} threads) {:8.1} us wall, energy {:8.1} us wall",
             x.len(),
             dt * 1e6,
             dt * 1e9 / x.len() as f64,
+            rayon::current_num_threads(),
+            dp * 1e6,
             de * 1e6
         );
+    }
+}
+
+/// The numbers of docs/model.md's parameter table (`--nocapture` prints it as markdown).
+#[test]
+fn table_one_numbers_for_docs() {
+    let table_c = [(23867, 1.81e-34), (5000, 4.13e-33), (500, 4.13e-31), (100, 1.03e-29)];
+    println!("| N | L0 (m) | Lmax (m) | p (m) | θ0 (°) | C Eq. 4 (J·m²) | C Table I | ratio | μ0 (N/m) | K (N/m) |");
+    for (n, tc) in table_c {
+        let p = ModelParams::coarse_grained(n, 300.0).unwrap();
+        println!(
+            "| {n} | {:.4e} | {:.4e} | {:.4e} | {:.3} | {:.4e} | {tc:.2e} | {:.3} | {:.4e} | {:.4e} |",
+            p.l0_m,
+            p.lmax_m,
+            p.persistence_length_m,
+            p.theta0_deg,
+            p.c_j_m2,
+            tc / p.c_j_m2,
+            p.shear_modulus_n_per_m,
+            p.area_modulus_n_per_m
+        );
+        // Table I's C is 4× Eq. 4 within its rounding (3.98–4.08)
+        assert!((tc / p.c_j_m2 - 4.0).abs() < 0.1);
+        // the units conversion keeps C: pN·µm³ = 1e-30 J·m²
+        let c = MembraneConstants::from_params(&p, 1e-6, 1e-18, 0.0, 0.0);
+        assert!((c.c_eq4_for(c.l0) * 1e-30 / p.c_j_m2 - 1.0).abs() < 1e-12);
+        // and in units where kBT = 1 and L0 = 1 (a DPD-like system), C/(kBT L0²) is N-independent up to p L0
+        let cd = MembraneConstants::from_params(&p, p.l0_m, p.kbt_j, 0.0, 0.0);
+        println!("    N = {n}: in units of (L0, kBT): p = {:.5} L0, C = {:.5} kBT L0^2", cd.persistence_length, cd.c_eq4_for(1.0));
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Parallel evaluation
+
+fn run_parallel(model: &MembraneModel, x: &[DVec3], threads: usize) -> (Vec<DVec3>, EnergyTerms) {
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+    let mut ws = model.workspace();
+    let mut f = vec![DVec3::ZERO; x.len()];
+    let e = pool.install(|| model.add_forces_parallel(x, &mut f, &mut ws)).unwrap();
+    (f, e)
+}
+
+/// The parallel path equals the serial one to round-off and is bit-identical for 1, 2, 3 and 8
+/// threads (an icosphere of 10242 vertices: several chunks of every element kind).
+#[test]
+fn parallel_forces_are_deterministic_and_match_serial() {
+    let c = constants_um(500, DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2);
+    let mesh = icosphere(5, 1.0);
+    let topo = mesh.topology().unwrap();
+    let l = topo.links[0];
+    let scale = c.l0 / (mesh.vertices[l[0] as usize] - mesh.vertices[l[1] as usize]).length();
+    let rest: Vec<DVec3> = mesh.vertices.iter().map(|p| *p * scale).collect();
+    let mut rng = Rng(11);
+    let x: Vec<DVec3> = rest.iter().map(|p| *p + 0.03 * c.l0 * rng.vec()).collect();
+    for reference in [ReferenceState::StressFree, ReferenceState::Uniform] {
+        let model = MembraneModel::new(&topo, &rest, &c, reference).unwrap();
+        let (fs, es) = forces(&model, &x, TermSet::ALL);
+        let (f1, e1) = run_parallel(&model, &x, 1);
+        let fnorm = fs.iter().map(|v| v.length()).fold(0.0, f64::max);
+        let diff = fs.iter().zip(&f1).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
+        println!("parallel vs serial ({reference:?}, N = {}): max |df| = {diff:.1e} (max |f| {fnorm:.3})", x.len());
+        // a different summation order: round-off of the largest single contributions (the
+        // volume gradient x_b × x_c/6 about vertex 0 reaches R² ~ 700 µm² on this 26 µm sphere)
+        assert!(diff < 1e-11 * fnorm);
+        assert!((e1.total() / es.total() - 1.0).abs() < 1e-13);
+        for t in [2, 3, 8] {
+            let (ft, et) = run_parallel(&model, &x, t);
+            assert_eq!(et, e1, "{t} threads");
+            assert!(ft.iter().zip(&f1).all(|(a, b)| a.to_array() == b.to_array()), "{t} threads");
+        }
+    }
+    // errors come out too
+    let model = MembraneModel::stress_free(&topo, &rest, &c).unwrap();
+    let mut y = x.clone();
+    y[5000] *= 3.0;
+    let mut ws = model.workspace();
+    let mut f = vec![DVec3::ZERO; y.len()];
+    assert!(matches!(model.add_forces_parallel(&y, &mut f, &mut ws), Err(ForceError::LinkOverstretched { .. })));
+}
+
+/// The stress-free construction on meshes from `meshgen` (ignored: slow, and depends on the
+/// mesh generator): the p_i/p distribution and the in-plane force at rest.
+#[test]
+#[ignore]
+fn stress_free_on_generated_meshes() {
+    let shape = crate::shape::EvansFung::healthy_um();
+    for (n, seed) in [(500, 1), (500, 2), (1000, 1), (5000, 1)] {
+        let c = constants_um(n, DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2);
+        let t = std::time::Instant::now();
+        let (mesh, report) = crate::meshgen::generate(&shape, &c, &crate::meshgen::MeshGenOptions::new(n, seed)).unwrap();
+        let topo = mesh.topology().unwrap();
+        match MembraneModel::stress_free_with_bounds(&topo, &mesh.vertices, &c, (1e-6, 1e6)) {
+            Ok(sf) => {
+                let d = sf.persistence_ratio_distribution();
+                let mut r = sf.link_persistence_ratios().to_vec();
+                r.sort_by(|a, b| a.partial_cmp(b).unwrap());
+                let (f, _) = forces(&sf, &mesh.vertices, TermSet::IN_PLANE);
+                let fm = f.iter().map(|v| v.length()).fold(0.0, f64::max);
+                println!(
+                    "N {n} seed {seed} ({:.0} s, {} steps, converged {}): p_i/p mean {:.3} min {:.3} max {:.3}, 99% {:.3}, > 4: {}, > 10: {}; max |f_in-plane| at rest {fm:.1e} pN",
+                    t.elapsed().as_secs_f64(),
+                    report.steps,
+                    report.converged,
+                    d.mean,
+                    d.min,
+                    d.max,
+                    r[r.len() * 99 / 100],
+                    r.iter().filter(|&&v| v > 4.0).count(),
+                    r.iter().filter(|&&v| v > 10.0).count()
+                );
+            }
+            Err(e) => println!("N {n} seed {seed}: {e}"),
+        }
     }
 }
