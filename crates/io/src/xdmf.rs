@@ -53,10 +53,11 @@ fn hyperslab(out: &mut String, indent: &str, h5name: &str, name: &str, shape: &[
     let stride = vec![1usize; nd];
     let mut count = shape.to_vec();
     count[0] = 1;
+    // The selected block without its frame axis: what the grid's topology expects.
     let _ = writeln!(
         out,
         "{indent}<DataItem ItemType=\"HyperSlab\" Dimensions=\"{}\" Type=\"HyperSlab\">",
-        dims(&count)
+        dims(&count[1..])
     );
     let _ = writeln!(
         out,

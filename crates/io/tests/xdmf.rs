@@ -97,7 +97,8 @@ fn check_item(item: &El, h5: &hdf5::File, h5name: &str) -> Vec<usize> {
                     "hyperslab out of bounds on axis {d}: {v:?} in {src_shape:?}"
                 );
             }
-            assert_eq!(declared, count, "hyperslab Dimensions = count");
+            assert_eq!(count[0], 1, "one frame per grid");
+            assert_eq!(declared, count[1..], "hyperslab Dimensions = count without the frame axis");
             declared
         }
         _ => match item.attr("Format") {

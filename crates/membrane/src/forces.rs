@@ -46,27 +46,53 @@ pub const PERSISTENCE_RATIO_BOUNDS: (f64, f64) = (0.1, 10.0);
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ForceError {
     #[error("link {link} ({}-{}) is overstretched: length {length} >= Lmax {lmax}", vertices[0], vertices[1])]
-    LinkOverstretched { link: usize, vertices: [u32; 2], length: f64, lmax: f64 },
+    LinkOverstretched {
+        link: usize,
+        vertices: [u32; 2],
+        length: f64,
+        lmax: f64,
+    },
     #[error("triangle {triangle} ({}-{}-{}) is degenerate: area {area}", vertices[0], vertices[1], vertices[2])]
-    DegenerateTriangle { triangle: usize, vertices: [u32; 3], area: f64 },
+    DegenerateTriangle {
+        triangle: usize,
+        vertices: [u32; 3],
+        area: f64,
+    },
     #[error("link pair {pair} (link {}-{}) has a degenerate dihedral", vertices[1], vertices[2])]
     DegenerateDihedral { pair: usize, vertices: [u32; 4] },
     #[error("vertex {vertex} has a non-finite position {position:?}")]
     NonFinitePosition { vertex: usize, position: [f64; 3] },
     #[error("{what} has length {got}, the model has {expected} vertices")]
-    WrongLength { what: &'static str, expected: usize, got: usize },
+    WrongLength {
+        what: &'static str,
+        expected: usize,
+        got: usize,
+    },
     #[error("constant {name} = {value} is invalid ({allowed})")]
-    BadConstant { name: &'static str, value: f64, allowed: &'static str },
+    BadConstant {
+        name: &'static str,
+        value: f64,
+        allowed: &'static str,
+    },
     #[error(
         "stress-free reference: link {link} ({}-{}) carries a non-positive C/A tension {tension}; the resting mesh is badly shaped",
         vertices[0], vertices[1]
     )]
-    NonPositiveTension { link: usize, vertices: [u32; 2], tension: f64 },
+    NonPositiveTension {
+        link: usize,
+        vertices: [u32; 2],
+        tension: f64,
+    },
     #[error(
         "stress-free reference: link {link} ({}-{}) needs p_i/p = {ratio}, outside [{}, {}]; the resting mesh is badly shaped",
         vertices[0], vertices[1], bounds.0, bounds.1
     )]
-    PersistenceRatioOutOfRange { link: usize, vertices: [u32; 2], ratio: f64, bounds: (f64, f64) },
+    PersistenceRatioOutOfRange {
+        link: usize,
+        vertices: [u32; 2],
+        ratio: f64,
+        bounds: (f64, f64),
+    },
 }
 
 /// Which reference state the in-plane energy uses.
@@ -158,27 +184,43 @@ impl MembraneConstants {
             if v > 0.0 && v.is_finite() {
                 Ok(())
             } else {
-                Err(ForceError::BadConstant { name, value: v, allowed: "finite and > 0" })
+                Err(ForceError::BadConstant {
+                    name,
+                    value: v,
+                    allowed: "finite and > 0",
+                })
             }
         };
         let nonneg = |name, v: f64| {
             if v >= 0.0 && v.is_finite() {
                 Ok(())
             } else {
-                Err(ForceError::BadConstant { name, value: v, allowed: "finite and >= 0" })
+                Err(ForceError::BadConstant {
+                    name,
+                    value: v,
+                    allowed: "finite and >= 0",
+                })
             }
         };
         pos("kbt", self.kbt)?;
         pos("l0", self.l0)?;
         pos("persistence_length", self.persistence_length)?;
         if !(self.lmax_over_l0 > 1.0 && self.lmax_over_l0.is_finite()) {
-            return Err(ForceError::BadConstant { name: "lmax_over_l0", value: self.lmax_over_l0, allowed: "> 1" });
+            return Err(ForceError::BadConstant {
+                name: "lmax_over_l0",
+                value: self.lmax_over_l0,
+                allowed: "> 1",
+            });
         }
         nonneg("k_bend", self.k_bend)?;
         nonneg("k_area", self.k_area)?;
         nonneg("k_volume", self.k_volume)?;
         if !self.theta0_rad.is_finite() {
-            return Err(ForceError::BadConstant { name: "theta0_rad", value: self.theta0_rad, allowed: "finite" });
+            return Err(ForceError::BadConstant {
+                name: "theta0_rad",
+                value: self.theta0_rad,
+                allowed: "finite",
+            });
         }
         Ok(())
     }
@@ -223,11 +265,29 @@ pub struct TermSet {
 
 impl TermSet {
     /// Every term.
-    pub const ALL: Self = Self { wlc: true, c_over_a: true, bending: true, area: true, volume: true };
+    pub const ALL: Self = Self {
+        wlc: true,
+        c_over_a: true,
+        bending: true,
+        area: true,
+        volume: true,
+    };
     /// No term.
-    pub const NONE: Self = Self { wlc: false, c_over_a: false, bending: false, area: false, volume: false };
+    pub const NONE: Self = Self {
+        wlc: false,
+        c_over_a: false,
+        bending: false,
+        area: false,
+        volume: false,
+    };
     /// WLC + C/A.
-    pub const IN_PLANE: Self = Self { wlc: true, c_over_a: true, bending: false, area: false, volume: false };
+    pub const IN_PLANE: Self = Self {
+        wlc: true,
+        c_over_a: true,
+        bending: false,
+        area: false,
+        volume: false,
+    };
 }
 
 impl Default for TermSet {
@@ -295,7 +355,11 @@ impl MembraneModel {
         c.validate()?;
         for (name, v) in [("area0", area0), ("volume0", volume0)] {
             if !(v > 0.0 && v.is_finite()) {
-                return Err(ForceError::BadConstant { name, value: v, allowed: "finite and > 0" });
+                return Err(ForceError::BadConstant {
+                    name,
+                    value: v,
+                    allowed: "finite and > 0",
+                });
             }
         }
         let ns = topology.links.len();
@@ -356,8 +420,11 @@ impl MembraneModel {
         let nt = topology.triangles.len();
 
         // Per-link rest lengths.
-        let link_l0: Vec<f64> =
-            topology.links.iter().map(|l| (rest[l[1] as usize] - rest[l[0] as usize]).length()).collect();
+        let link_l0: Vec<f64> = topology
+            .links
+            .iter()
+            .map(|l| (rest[l[1] as usize] - rest[l[0] as usize]).length())
+            .collect();
         let link_lmax: Vec<f64> = link_l0.iter().map(|l| c.lmax_over_l0 * l).collect();
 
         // Per-triangle C and its tension on each side. Side k of triangle (v0, v1, v2) is the
@@ -370,7 +437,11 @@ impl MembraneModel {
             let p = tri.map(|v| rest[v as usize]);
             let area = crate::mesh::triangle_area(p[0], p[1], p[2]);
             if !(area > 0.0) {
-                return Err(ForceError::DegenerateTriangle { triangle: t, vertices: *tri, area });
+                return Err(ForceError::DegenerateTriangle {
+                    triangle: t,
+                    vertices: *tri,
+                    area,
+                });
             }
             let l0a = (4.0 * area / 3f64.sqrt()).sqrt();
             let ca = c.c_eq4_for(l0a);
@@ -393,13 +464,22 @@ impl MembraneModel {
         for (i, l) in topology.links.iter().enumerate() {
             let t = tension[i];
             if !(t > 0.0 && t.is_finite()) {
-                return Err(ForceError::NonPositiveTension { link: i, vertices: *l, tension: t });
+                return Err(ForceError::NonPositiveTension {
+                    link: i,
+                    vertices: *l,
+                    tension: t,
+                });
             }
             // The nominal WLC tension of this link at its rest length, with the model's p.
             let f_nominal = w_nominal * dg0;
             let ratio = f_nominal / t; // p_i / p
             if !(ratio >= bounds.0 && ratio <= bounds.1) {
-                return Err(ForceError::PersistenceRatioOutOfRange { link: i, vertices: *l, ratio, bounds });
+                return Err(ForceError::PersistenceRatioOutOfRange {
+                    link: i,
+                    vertices: *l,
+                    ratio,
+                    bounds,
+                });
             }
             link_w.push(t / dg0);
             link_p_ratio.push(ratio);
@@ -429,7 +509,11 @@ impl MembraneModel {
         };
         (model.area0, model.volume0) = model.area_volume(rest)?;
         if !(model.volume0 > 0.0) {
-            return Err(ForceError::BadConstant { name: "volume0", value: model.volume0, allowed: "> 0 (outward triangles)" });
+            return Err(ForceError::BadConstant {
+                name: "volume0",
+                value: model.volume0,
+                allowed: "> 0 (outward triangles)",
+            });
         }
         Ok(model)
     }
@@ -448,9 +532,13 @@ impl MembraneModel {
                 check_positions(rest, topology.n_vertices, "rest positions")?;
                 let mut model = Self::uniform(topology, c, 1.0, 1.0)?;
                 (model.area0, model.volume0) = model.area_volume(rest)?;
-        if !(model.volume0 > 0.0) {
-            return Err(ForceError::BadConstant { name: "volume0", value: model.volume0, allowed: "> 0 (outward triangles)" });
-        }
+                if !(model.volume0 > 0.0) {
+                    return Err(ForceError::BadConstant {
+                        name: "volume0",
+                        value: model.volume0,
+                        allowed: "> 0 (outward triangles)",
+                    });
+                }
                 Ok(model)
             }
         }
@@ -477,7 +565,8 @@ impl MembraneModel {
         if terms.wlc {
             for (i, l) in self.links.iter().enumerate() {
                 let len = (x[l[1] as usize] - x[l[0] as usize]).length();
-                let (v, _) = kernels::wlc(len, self.link_lmax[i], self.link_w[i]).ok_or_else(|| self.overstretched(i, len))?;
+                let (v, _) =
+                    kernels::wlc(len, self.link_lmax[i], self.link_w[i]).ok_or_else(|| self.overstretched(i, len))?;
                 e.wlc += v;
             }
         }
@@ -510,7 +599,11 @@ impl MembraneModel {
     pub fn add_forces_terms(&self, x: &[DVec3], f: &mut [DVec3], terms: TermSet) -> Result<EnergyTerms, ForceError> {
         check_positions(x, self.n_vertices, "positions")?;
         if f.len() != self.n_vertices {
-            return Err(ForceError::WrongLength { what: "force buffer", expected: self.n_vertices, got: f.len() });
+            return Err(ForceError::WrongLength {
+                what: "force buffer",
+                expected: self.n_vertices,
+                got: f.len(),
+            });
         }
         let mut e = EnergyTerms::default();
 
@@ -533,7 +626,8 @@ impl MembraneModel {
                 let (ia, ib) = (l[0] as usize, l[1] as usize);
                 let d = x[ib] - x[ia];
                 let len = d.length();
-                let (v, t) = kernels::wlc(len, self.link_lmax[i], self.link_w[i]).ok_or_else(|| self.overstretched(i, len))?;
+                let (v, t) =
+                    kernels::wlc(len, self.link_lmax[i], self.link_w[i]).ok_or_else(|| self.overstretched(i, len))?;
                 e.wlc += v;
                 // tension t = dV/dL > 0 pulls the two ends together
                 let fv = d * (t / len);
@@ -603,7 +697,11 @@ impl MembraneModel {
             let [a, b, c] = tri.map(|v| x[v as usize] - origin);
             let at = 0.5 * (b - a).cross(c - a).length();
             if !(at > self.tri_amin[t]) {
-                return Err(ForceError::DegenerateTriangle { triangle: t, vertices: *tri, area: at });
+                return Err(ForceError::DegenerateTriangle {
+                    triangle: t,
+                    vertices: *tri,
+                    area: at,
+                });
             }
             area += at;
             vol6 += a.dot(b.cross(c));
@@ -612,7 +710,12 @@ impl MembraneModel {
     }
 
     fn overstretched(&self, i: usize, length: f64) -> ForceError {
-        ForceError::LinkOverstretched { link: i, vertices: self.links[i], length, lmax: self.link_lmax[i] }
+        ForceError::LinkOverstretched {
+            link: i,
+            vertices: self.links[i],
+            length,
+            lmax: self.link_lmax[i],
+        }
     }
 
     /// Which reference state this model was built with.
@@ -714,17 +817,28 @@ impl MembraneModel {
 /// Checks length and finiteness of a position array.
 fn check_positions(x: &[DVec3], n: usize, what: &'static str) -> Result<(), ForceError> {
     if x.len() != n {
-        return Err(ForceError::WrongLength { what, expected: n, got: x.len() });
+        return Err(ForceError::WrongLength {
+            what,
+            expected: n,
+            got: x.len(),
+        });
     }
     if let Some(v) = x.iter().position(|p| !p.is_finite()) {
-        return Err(ForceError::NonFinitePosition { vertex: v, position: x[v].to_array() });
+        return Err(ForceError::NonFinitePosition {
+            vertex: v,
+            position: x[v].to_array(),
+        });
     }
     Ok(())
 }
 
 /// A lookup (a, b) → link index (order-independent), built once.
 fn link_lookup(topology: &Topology) -> impl Fn(u32, u32) -> usize + '_ {
-    let map: std::collections::HashMap<(u32, u32), usize> =
-        topology.links.iter().enumerate().map(|(i, l)| ((l[0], l[1]), i)).collect();
+    let map: std::collections::HashMap<(u32, u32), usize> = topology
+        .links
+        .iter()
+        .enumerate()
+        .map(|(i, l)| ((l[0], l[1]), i))
+        .collect();
     move |a, b| map[&(a.min(b), a.max(b))]
 }

@@ -62,7 +62,11 @@ impl Topology {
         for (t, tri) in triangles.iter().enumerate() {
             for &v in tri {
                 if v as usize >= n_vertices {
-                    return Err(MeshError::BadIndex { tri: t, vertex: v, n: n_vertices });
+                    return Err(MeshError::BadIndex {
+                        tri: t,
+                        vertex: v,
+                        n: n_vertices,
+                    });
                 }
                 used[v as usize] = true;
             }
@@ -101,14 +105,24 @@ impl Topology {
         // every directed edge must have its reverse
         for &(from, to) in directed.keys() {
             if !directed.contains_key(&(to, from)) {
-                return Err(MeshError::NonManifold { a: from.min(to), b: from.max(to), count: 1 });
+                return Err(MeshError::NonManifold {
+                    a: from.min(to),
+                    b: from.max(to),
+                    count: 1,
+                });
             }
         }
         let euler = n_vertices as i64 - links.len() as i64 + triangles.len() as i64;
         if euler != 2 {
             return Err(MeshError::Genus(euler));
         }
-        Ok(Self { n_vertices, triangles: triangles.to_vec(), links, dihedrals, link_triangles })
+        Ok(Self {
+            n_vertices,
+            triangles: triangles.to_vec(),
+            links,
+            dihedrals,
+            link_triangles,
+        })
     }
 
     /// Vertex valences (number of links at each vertex).
@@ -235,14 +249,7 @@ pub(crate) mod tests {
 
     /// Regular octahedron of circumradius 1, outward-oriented.
     pub fn octahedron() -> Mesh {
-        let v = vec![
-            DVec3::X,
-            DVec3::NEG_X,
-            DVec3::Y,
-            DVec3::NEG_Y,
-            DVec3::Z,
-            DVec3::NEG_Z,
-        ];
+        let v = vec![DVec3::X, DVec3::NEG_X, DVec3::Y, DVec3::NEG_Y, DVec3::Z, DVec3::NEG_Z];
         let t = vec![
             [0, 2, 4],
             [2, 1, 4],

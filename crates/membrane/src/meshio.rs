@@ -8,7 +8,10 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 fn err(path: &Path, msg: impl Into<String>) -> MeshError {
-    MeshError::File { path: path.display().to_string(), msg: msg.into() }
+    MeshError::File {
+        path: path.display().to_string(),
+        msg: msg.into(),
+    }
 }
 
 /// Reads a mesh from OFF (`.off`), ASCII PLY (`.ply`) or a CSV pair: `NAME.vertices.csv`
@@ -22,9 +25,18 @@ pub fn read_mesh(path: &Path) -> Result<Mesh, MeshError> {
         read_ply(path)?
     } else if name.ends_with(".csv") {
         let (vp, tp) = csv_pair(path)?;
-        (read_csv_rows(&vp, 3)?.into_iter().map(|r| DVec3::new(r[0], r[1], r[2])).collect(), to_tris(&tp, read_csv_rows(&tp, 3)?)?)
+        (
+            read_csv_rows(&vp, 3)?
+                .into_iter()
+                .map(|r| DVec3::new(r[0], r[1], r[2]))
+                .collect(),
+            to_tris(&tp, read_csv_rows(&tp, 3)?)?,
+        )
     } else {
-        return Err(err(path, "unknown mesh format: expected .off, .ply, or .vertices.csv/.triangles.csv"));
+        return Err(err(
+            path,
+            "unknown mesh format: expected .off, .ply, or .vertices.csv/.triangles.csv",
+        ));
     };
     let n = verts.len();
     Mesh::new(verts, tris).map_err(|e| err(path, format!("not a closed oriented surface ({n} vertices): {e}")))
@@ -36,7 +48,10 @@ fn csv_pair(path: &Path) -> Result<(PathBuf, PathBuf), MeshError> {
         .strip_suffix(".vertices.csv")
         .or_else(|| s.strip_suffix(".triangles.csv"))
         .ok_or_else(|| err(path, "a CSV mesh is a pair NAME.vertices.csv + NAME.triangles.csv"))?;
-    Ok((PathBuf::from(format!("{stem}.vertices.csv")), PathBuf::from(format!("{stem}.triangles.csv"))))
+    Ok((
+        PathBuf::from(format!("{stem}.vertices.csv")),
+        PathBuf::from(format!("{stem}.triangles.csv")),
+    ))
 }
 
 fn read_text(path: &Path) -> Result<String, MeshError> {
@@ -55,7 +70,12 @@ fn read_csv_rows(path: &Path, cols: usize) -> Result<Vec<Vec<f64>>, MeshError> {
         let parsed: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
         match parsed {
             Ok(v) if v.len() == cols => rows.push(v),
-            Ok(v) => return Err(err(path, format!("line {}: expected {cols} columns, found {}", k + 1, v.len()))),
+            Ok(v) => {
+                return Err(err(
+                    path,
+                    format!("line {}: expected {cols} columns, found {}", k + 1, v.len()),
+                ))
+            }
             Err(_) if rows.is_empty() => continue, // header
             Err(_) => return Err(err(path, format!("line {}: not a number: {line:?}", k + 1))),
         }
@@ -73,7 +93,10 @@ fn to_tris(path: &Path, rows: Vec<Vec<f64>>) -> Result<Vec<[u32; 3]>, MeshError>
             let mut t = [0u32; 3];
             for (j, &v) in r.iter().enumerate() {
                 if v < 0.0 || v.fract() != 0.0 || v > u32::MAX as f64 {
-                    return Err(err(path, format!("triangle {k}: index {v} is not a non-negative integer")));
+                    return Err(err(
+                        path,
+                        format!("triangle {k}: index {v} is not a non-negative integer"),
+                    ));
                 }
                 t[j] = v as u32;
             }
@@ -83,7 +106,9 @@ fn to_tris(path: &Path, rows: Vec<Vec<f64>>) -> Result<Vec<[u32; 3]>, MeshError>
 }
 
 fn tokens_after_comments(text: &str) -> impl Iterator<Item = &str> {
-    text.lines().map(|l| l.split('#').next().unwrap_or("")).flat_map(str::split_whitespace)
+    text.lines()
+        .map(|l| l.split('#').next().unwrap_or(""))
+        .flat_map(str::split_whitespace)
 }
 
 fn read_off(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>), MeshError> {
@@ -109,7 +134,10 @@ fn read_off(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>), MeshError> {
     for k in 0..nf {
         let c = num("face size")?;
         if c != 3.0 {
-            return Err(err(path, format!("face {k} has {c} vertices; only triangles are supported")));
+            return Err(err(
+                path,
+                format!("face {k} has {c} vertices; only triangles are supported"),
+            ));
         }
         tris.push(to_tris(path, vec![vec![num("index")?, num("index")?, num("index")?]])?[0]);
     }
@@ -126,20 +154,33 @@ fn read_ply(path: &Path) -> Result<(Vec<DVec3>, Vec<[u32; 3]>), MeshError> {
     for line in lines.by_ref() {
         let w: Vec<&str> = line.split_whitespace().collect();
         match w.as_slice() {
-            ["format", f, ..] if *f != "ascii" => return Err(err(path, format!("PLY format {f} not supported; use ascii"))),
+            ["format", f, ..] if *f != "ascii" => {
+                return Err(err(path, format!("PLY format {f} not supported; use ascii")))
+            }
             ["element", "vertex", n] => nv = n.parse::<usize>().ok(),
             ["element", "face", n] => nf = n.parse::<usize>().ok(),
             ["end_header"] => break,
             _ => {}
         }
     }
-    let (nv, nf) = (nv.ok_or_else(|| err(path, "no vertex element"))?, nf.ok_or_else(|| err(path, "no face element"))?);
+    let (nv, nf) = (
+        nv.ok_or_else(|| err(path, "no vertex element"))?,
+        nf.ok_or_else(|| err(path, "no face element"))?,
+    );
     let body: Vec<&str> = lines.collect();
     if body.len() < nv + nf {
-        return Err(err(path, format!("expected {} data lines, found {}", nv + nf, body.len())));
+        return Err(err(
+            path,
+            format!("expected {} data lines, found {}", nv + nf, body.len()),
+        ));
     }
     let parse = |line: &str, k: usize| -> Result<Vec<f64>, MeshError> {
-        line.split_whitespace().map(|t| t.parse::<f64>().map_err(|_| err(path, format!("data line {k}: bad number {t:?}")))).collect()
+        line.split_whitespace()
+            .map(|t| {
+                t.parse::<f64>()
+                    .map_err(|_| err(path, format!("data line {k}: bad number {t:?}")))
+            })
+            .collect()
     };
     let mut verts = Vec::with_capacity(nv);
     for (k, line) in body[..nv].iter().enumerate() {
@@ -193,8 +234,15 @@ pub fn write_mesh(mesh: &Mesh, path: &Path) -> Result<Vec<PathBuf>, MeshError> {
         write(path, out)?;
         Ok(vec![path.to_path_buf()])
     } else if name.ends_with(".csv") {
-        let stem = name.strip_suffix(".vertices.csv").or_else(|| name.strip_suffix(".triangles.csv")).or_else(|| name.strip_suffix(".csv")).unwrap();
-        let (vp, tp) = (PathBuf::from(format!("{stem}.vertices.csv")), PathBuf::from(format!("{stem}.triangles.csv")));
+        let stem = name
+            .strip_suffix(".vertices.csv")
+            .or_else(|| name.strip_suffix(".triangles.csv"))
+            .or_else(|| name.strip_suffix(".csv"))
+            .unwrap();
+        let (vp, tp) = (
+            PathBuf::from(format!("{stem}.vertices.csv")),
+            PathBuf::from(format!("{stem}.triangles.csv")),
+        );
         out.push_str("x_um,y_um,z_um\n");
         for v in &mesh.vertices {
             writeln!(out, "{},{},{}", v.x, v.y, v.z).unwrap();
@@ -232,7 +280,10 @@ mod tests {
 
     #[test]
     fn reads_the_golden_csv_pair() {
-        let p = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/reference/membrane_golden/mesh_N500.vertices.csv"));
+        let p = Path::new(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../../shared/reference/membrane_golden/mesh_N500.vertices.csv"
+        ));
         if !p.exists() {
             eprintln!("skipped: {} not found", p.display());
             return;
@@ -255,7 +306,10 @@ mod tests {
         assert!(e.contains("bad.off") && e.contains("closed"), "{e}");
         std::fs::write(&p, "OFF\n4 1\n").unwrap();
         assert!(read_mesh(&p).unwrap_err().to_string().contains("ends early"));
-        assert!(read_mesh(&dir.join("x.stl")).unwrap_err().to_string().contains("unknown mesh format"));
+        assert!(read_mesh(&dir.join("x.stl"))
+            .unwrap_err()
+            .to_string()
+            .contains("unknown mesh format"));
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -62,7 +62,11 @@ pub enum ParamsError {
     #[error("n = {0} vertices is too few: the coarse-grained model needs n >= {MIN_VERTICES}")]
     TooFewVertices(usize),
     #[error("{name} = {value} is outside its allowed range ({allowed})")]
-    OutOfRange { name: &'static str, value: f64, allowed: &'static str },
+    OutOfRange {
+        name: &'static str,
+        value: f64,
+        allowed: &'static str,
+    },
 }
 
 /// C of Eq. (4): the value that makes an equilateral triangle of side L0 stress-free.
@@ -97,10 +101,18 @@ impl ModelParams {
             return Err(ParamsError::TooFewVertices(n));
         }
         if !(temperature_k > 0.0 && temperature_k < 1000.0) {
-            return Err(ParamsError::OutOfRange { name: "temperature_k", value: temperature_k, allowed: "0 < T < 1000 K" });
+            return Err(ParamsError::OutOfRange {
+                name: "temperature_k",
+                value: temperature_k,
+                allowed: "0 < T < 1000 K",
+            });
         }
         if !(p_scale > 0.0 && p_scale.is_finite()) {
-            return Err(ParamsError::OutOfRange { name: "persistence scale", value: p_scale, allowed: "> 0" });
+            return Err(ParamsError::OutOfRange {
+                name: "persistence scale",
+                value: p_scale,
+                allowed: "> 0",
+            });
         }
         let ratio = (fine::N as f64 / n as f64).sqrt(); // L0c / L0f, Eq. 8
         let l0 = fine::L0_M * ratio;
@@ -113,7 +125,11 @@ impl ModelParams {
     pub fn with_persistence_length(n: usize, temperature_k: f64, p_m: f64) -> Result<Self, ParamsError> {
         let base = Self::coarse_grained(n, temperature_k)?;
         if !(p_m > 0.0 && p_m.is_finite()) {
-            return Err(ParamsError::OutOfRange { name: "persistence_length_m", value: p_m, allowed: "> 0" });
+            return Err(ParamsError::OutOfRange {
+                name: "persistence_length_m",
+                value: p_m,
+                allowed: "> 0",
+            });
         }
         Ok(Self::from_parts(n, temperature_k, base.l0_m, p_m, base.theta0_deg))
     }
@@ -164,8 +180,18 @@ mod tests {
         for (n, l0, p, th, dl, dp, dth) in table {
             let m = ModelParams::coarse_grained(n, 300.0).unwrap();
             assert!((m.l0_m - l0).abs() <= dl * 1.0001, "N={n}: L0 {} vs {}", m.l0_m, l0);
-            assert!((m.persistence_length_m - p).abs() <= dp * 1.0001, "N={n}: p {} vs {}", m.persistence_length_m, p);
-            assert!((m.theta0_deg - th).abs() <= dth * 1.0001, "N={n}: theta0 {} vs {}", m.theta0_deg, th);
+            assert!(
+                (m.persistence_length_m - p).abs() <= dp * 1.0001,
+                "N={n}: p {} vs {}",
+                m.persistence_length_m,
+                p
+            );
+            assert!(
+                (m.theta0_deg - th).abs() <= dth * 1.0001,
+                "N={n}: theta0 {} vs {}",
+                m.theta0_deg,
+                th
+            );
             assert!((m.lmax_m / m.l0_m - 3.17).abs() < 1e-12);
         }
     }
@@ -207,7 +233,10 @@ mod tests {
 
     #[test]
     fn rejects_bad_input() {
-        assert!(matches!(ModelParams::coarse_grained(99, 300.0), Err(ParamsError::TooFewVertices(99))));
+        assert!(matches!(
+            ModelParams::coarse_grained(99, 300.0),
+            Err(ParamsError::TooFewVertices(99))
+        ));
         assert!(ModelParams::coarse_grained(500, -1.0).is_err());
         assert!(ModelParams::coarse_grained(500, f64::NAN).is_err());
         assert!(ModelParams::with_persistence_length(500, 300.0, 0.0).is_err());

@@ -19,17 +19,30 @@ pub struct EvansFung {
 impl EvansFung {
     /// The healthy cell, R = 3.91 µm with the corrected c0 = 0.1035805 (radius in µm).
     pub const fn healthy_um() -> Self {
-        Self { r: 3.91, c0: 0.1035805, c1: 1.001279, c2: -0.561381 }
+        Self {
+            r: 3.91,
+            c0: 0.1035805,
+            c1: 1.001279,
+            c2: -0.561381,
+        }
     }
 
     /// Eq. (7) exactly as printed (c0 = 0.0135805): a cell 0.11 µm thick at its centre.
     pub const fn as_printed_um() -> Self {
-        Self { r: 3.91, c0: 0.0135805, c1: 1.001279, c2: -0.561381 }
+        Self {
+            r: 3.91,
+            c0: 0.0135805,
+            c1: 1.001279,
+            c2: -0.561381,
+        }
     }
 
     /// The same shape with R expressed in another unit (`factor` = new units per old unit).
     pub fn scaled(self, factor: f64) -> Self {
-        Self { r: self.r * factor, ..self }
+        Self {
+            r: self.r * factor,
+            ..self
+        }
     }
 
     /// Polynomial factor P(s) = c0 + c1 s + c2 s².
@@ -118,7 +131,13 @@ impl EvansFung {
         // composite Simpson's rule
         for i in 0..=n {
             let t = i as f64 * h;
-            let w = if i == 0 || i == n { 1.0 } else if i % 2 == 1 { 4.0 } else { 2.0 };
+            let w = if i == 0 || i == n {
+                1.0
+            } else if i % 2 == 1 {
+                4.0
+            } else {
+                2.0
+            };
             let (st, ct) = t.sin_cos();
             let s = st * st;
             let rho = self.r * st;
@@ -135,7 +154,9 @@ impl EvansFung {
     /// Thickness at the centre (2 y(0)) and the largest thickness (2 max y).
     pub fn thickness_min_max(&self) -> (f64, f64) {
         let n = 20000;
-        let hmax = (0..=n).map(|i| self.half_thickness(self.r * i as f64 / n as f64)).fold(0.0, f64::max);
+        let hmax = (0..=n)
+            .map(|i| self.half_thickness(self.r * i as f64 / n as f64))
+            .fold(0.0, f64::max);
         (2.0 * self.half_thickness(0.0), 2.0 * hmax)
     }
 }
@@ -173,7 +194,11 @@ mod tests {
     #[test]
     fn sphere_map_round_trip_and_projection() {
         let s = EvansFung::healthy_um();
-        for &u in &[DVec3::new(0.3, 0.5, -0.2), DVec3::new(-0.9, -0.1, 0.3), DVec3::new(0.0, 1.0, 0.0)] {
+        for &u in &[
+            DVec3::new(0.3, 0.5, -0.2),
+            DVec3::new(-0.9, -0.1, 0.3),
+            DVec3::new(0.0, 1.0, 0.0),
+        ] {
             let u = u.normalize();
             let p = s.from_sphere(u);
             assert!(s.implicit(p).0.abs() < 1e-12);

@@ -48,7 +48,12 @@ pub enum StretchError {
     #[error("end_fraction = {0} must be in (0, 0.5)")]
     BadFraction(f64),
     #[error("force {force} did not converge in {iterations} iterations (largest residual force {residual:.3e}, tolerance {tolerance:.1e}); raise max_iterations or the tolerance")]
-    NotConverged { force: f64, iterations: usize, residual: f64, tolerance: f64 },
+    NotConverged {
+        force: f64,
+        iterations: usize,
+        residual: f64,
+        tolerance: f64,
+    },
     #[error("at force {force}: {source}")]
     Force { force: f64, source: ForceError },
 }
@@ -114,10 +119,17 @@ pub fn stretch(
             .minimize(&mut x, objective, opts.tolerance, opts.max_iterations)
             .map_err(|source| StretchError::Force { force, source })?;
         if residual >= opts.tolerance {
-            return Err(StretchError::NotConverged { force, iterations, residual, tolerance: opts.tolerance });
+            return Err(StretchError::NotConverged {
+                force,
+                iterations,
+                residual,
+                tolerance: opts.tolerance,
+            });
         }
         let (da, dt) = diameters(&x);
-        let energy = model.energy(&x).map_err(|source| StretchError::Force { force, source })?;
+        let energy = model
+            .energy(&x)
+            .map_err(|source| StretchError::Force { force, source })?;
         let (a, v) = (area_of(&x, model.triangles()), volume_of(&x, model.triangles()));
         let point = StretchPoint {
             force,
@@ -160,7 +172,16 @@ fn max_norm(a: &[DVec3]) -> f64 {
 impl Lbfgs {
     fn new(n: usize, memory: usize, first_step: f64) -> Self {
         let z = vec![DVec3::ZERO; n];
-        Self { memory, s: VecDeque::new(), y: VecDeque::new(), g: z.clone(), g_new: z.clone(), d: z.clone(), x_new: z, first_step }
+        Self {
+            memory,
+            s: VecDeque::new(),
+            y: VecDeque::new(),
+            g: z.clone(),
+            g_new: z.clone(),
+            d: z.clone(),
+            x_new: z,
+            first_step,
+        }
     }
 
     /// Minimises from `x` until max |g| < tol. Returns (iterations, final max |g|).
@@ -190,14 +211,22 @@ impl Lbfgs {
                 gd = dot(&self.g, &self.d);
             }
             // first step of a fresh memory: limit the largest move
-            let mut alpha = if self.s.is_empty() { (self.first_step / max_norm(&self.d).max(1e-300)).min(1.0) } else { 1.0 };
+            let mut alpha = if self.s.is_empty() {
+                (self.first_step / max_norm(&self.d).max(1e-300)).min(1.0)
+            } else {
+                1.0
+            };
             let mut accepted = false;
             for _ in 0..60 {
                 for ((xn, xi), di) in self.x_new.iter_mut().zip(x.iter()).zip(&self.d) {
                     *xn = *xi + *di * alpha;
                 }
                 match f(&self.x_new, &mut self.g_new) {
-                    Ok(e_new) if e_new <= e + 1e-4 * alpha * gd || (e_new - e).abs() <= 1e-14 * e.abs().max(1.0) && dot(&self.g_new, &self.d) < 0.9 * gd.abs() => {
+                    Ok(e_new)
+                        if e_new <= e + 1e-4 * alpha * gd
+                            || (e_new - e).abs() <= 1e-14 * e.abs().max(1.0)
+                                && dot(&self.g_new, &self.d) < 0.9 * gd.abs() =>
+                    {
                         let s: Vec<DVec3> = self.d.iter().map(|d| *d * alpha).collect();
                         let y: Vec<DVec3> = self.g_new.iter().zip(&self.g).map(|(a, b)| *a - *b).collect();
                         if dot(&s, &y) > 1e-300 {

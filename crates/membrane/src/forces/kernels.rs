@@ -120,7 +120,11 @@ mod tests {
             let fd = (wlc_g(x + h) - wlc_g(x - h)) / (2.0 * h);
             assert!((fd / wlc_dg(x) - 1.0).abs() < 1e-7, "g' at {x}");
             let fd2 = (wlc_dg(x + h) - wlc_dg(x - h)) / (2.0 * h);
-            assert!((fd2 / wlc_ddg(x) - 1.0).abs() < 1e-7, "g'' at {x}: {fd2} vs {}", wlc_ddg(x));
+            assert!(
+                (fd2 / wlc_ddg(x) - 1.0).abs() < 1e-7,
+                "g'' at {x}: {fd2} vs {}",
+                wlc_ddg(x)
+            );
             // Marko–Siggia form of the tension
             let ms = 4.0 * (0.25 / (1.0 - x).powi(2) - 0.25 + x);
             assert!((ms / wlc_dg(x) - 1.0).abs() < 1e-14);

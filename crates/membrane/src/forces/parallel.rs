@@ -100,13 +100,21 @@ impl MembraneModel {
     ) -> Result<EnergyTerms, ForceError> {
         super::check_positions(x, self.n_vertices, "positions")?;
         if f.len() != self.n_vertices {
-            return Err(ForceError::WrongLength { what: "force buffer", expected: self.n_vertices, got: f.len() });
+            return Err(ForceError::WrongLength {
+                what: "force buffer",
+                expected: self.n_vertices,
+                got: f.len(),
+            });
         }
         if ws.n_vertices != self.n_vertices
             || ws.link_f.len() != self.links.len()
             || ws.tri_f.len() != self.triangles.len()
         {
-            return Err(ForceError::WrongLength { what: "workspace", expected: self.n_vertices, got: ws.n_vertices });
+            return Err(ForceError::WrongLength {
+                what: "workspace",
+                expected: self.n_vertices,
+                got: ws.n_vertices,
+            });
         }
         let mut e = EnergyTerms::default();
 
@@ -123,7 +131,11 @@ impl MembraneModel {
                         let [a, b, c] = tri.map(|v| x[v as usize] - origin);
                         let at = 0.5 * (b - a).cross(c - a).length();
                         if !(at > self.tri_amin[t]) {
-                            return Err(ForceError::DegenerateTriangle { triangle: t, vertices: *tri, area: at });
+                            return Err(ForceError::DegenerateTriangle {
+                                triangle: t,
+                                vertices: *tri,
+                                area: at,
+                            });
                         }
                         a_sum += at;
                         v_sum += a.dot(b.cross(c));

@@ -79,7 +79,11 @@ pub(crate) fn icosphere(levels: usize, radius: f64) -> Mesh {
 }
 
 fn golden_dir() -> String {
-    concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/reference/membrane_golden/").to_string()
+    concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/reference/membrane_golden/"
+    )
+    .to_string()
 }
 
 fn read_csv_rows(path: &str) -> Vec<Vec<f64>> {
@@ -99,7 +103,11 @@ pub(crate) fn golden() -> Option<(Topology, Vec<DVec3>, Vec<DVec3>, serde_json::
         eprintln!("golden data not found at {dir}: skipped");
         return None;
     }
-    let to_v = |rows: Vec<Vec<f64>>| rows.into_iter().map(|r| DVec3::new(r[0], r[1], r[2])).collect::<Vec<_>>();
+    let to_v = |rows: Vec<Vec<f64>>| {
+        rows.into_iter()
+            .map(|r| DVec3::new(r[0], r[1], r[2]))
+            .collect::<Vec<_>>()
+    };
     let x = to_v(read_csv_rows(&format!("{dir}mesh_N500.vertices.csv")));
     let xp = to_v(read_csv_rows(&format!("{dir}mesh_N500.perturbed.vertices.csv")));
     let tris: Vec<[u32; 3]> = read_csv_rows(&format!("{dir}mesh_N500.triangles.csv"))
@@ -154,7 +162,10 @@ fn fd_check(model: &MembraneModel, x: &[DVec3], terms: TermSet, h: f64) -> FdRep
     let (f, e) = forces(model, x, terms);
     // energies from add_forces and energy_terms agree
     let e2 = model.energy_terms(x, terms).unwrap();
-    assert!((e.total() - e2.total()).abs() <= 1e-12 * e.total().abs().max(1e-300), "{e:?} vs {e2:?}");
+    assert!(
+        (e.total() - e2.total()).abs() <= 1e-12 * e.total().abs().max(1e-300),
+        "{e:?} vs {e2:?}"
+    );
     let mut y = x.to_vec();
     let mut energy_at = |v: usize, k: usize, d: f64| {
         let old = y[v][k];
@@ -171,7 +182,12 @@ fn fd_check(model: &MembraneModel, x: &[DVec3], terms: TermSet, h: f64) -> FdRep
             fd[v][k] = -(8.0 * d1 - d2) / (12.0 * h);
         }
     }
-    let num: f64 = f.iter().zip(&fd).map(|(a, b)| (*a - *b).length_squared()).sum::<f64>().sqrt();
+    let num: f64 = f
+        .iter()
+        .zip(&fd)
+        .map(|(a, b)| (*a - *b).length_squared())
+        .sum::<f64>()
+        .sqrt();
     let den: f64 = f.iter().map(|a| a.length_squared()).sum::<f64>().sqrt();
     let fmax = f.iter().map(|a| a.abs().max_element()).fold(0.0, f64::max);
     let (mut comp_rel, mut comp_abs): (f64, f64) = (0.0, 0.0);
@@ -183,15 +199,50 @@ fn fd_check(model: &MembraneModel, x: &[DVec3], terms: TermSet, h: f64) -> FdRep
             }
         }
     }
-    FdReport { norm_rel: num / den, comp_rel, comp_abs, fmax }
+    FdReport {
+        norm_rel: num / den,
+        comp_rel,
+        comp_abs,
+        fmax,
+    }
 }
 
 const SINGLE_TERMS: [(&str, TermSet); 6] = [
-    ("wlc", TermSet { wlc: true, ..TermSet::NONE }),
-    ("c_over_a", TermSet { c_over_a: true, ..TermSet::NONE }),
-    ("bending", TermSet { bending: true, ..TermSet::NONE }),
-    ("area", TermSet { area: true, ..TermSet::NONE }),
-    ("volume", TermSet { volume: true, ..TermSet::NONE }),
+    (
+        "wlc",
+        TermSet {
+            wlc: true,
+            ..TermSet::NONE
+        },
+    ),
+    (
+        "c_over_a",
+        TermSet {
+            c_over_a: true,
+            ..TermSet::NONE
+        },
+    ),
+    (
+        "bending",
+        TermSet {
+            bending: true,
+            ..TermSet::NONE
+        },
+    ),
+    (
+        "area",
+        TermSet {
+            area: true,
+            ..TermSet::NONE
+        },
+    ),
+    (
+        "volume",
+        TermSet {
+            volume: true,
+            ..TermSet::NONE
+        },
+    ),
     ("total", TermSet::ALL),
 ];
 
@@ -286,7 +337,10 @@ fn golden_energies_n500_uniform() {
             let err = (g - w).abs();
             let rel = err / w.abs().max(1e-300);
             println!("golden {label:<10} {name:<9} ours {g:.15e} golden {w:.15e} rel {rel:.1e}");
-            assert!(err <= 1e-10 * w.abs() || err <= 1e-15 * scale, "{label} {name}: {g} vs {w}");
+            assert!(
+                err <= 1e-10 * w.abs() || err <= 1e-15 * scale,
+                "{label} {name}: {g} vs {w}"
+            );
         }
     };
     check("at_mesh", model.energy(&x).unwrap(), &json["at_mesh"]);
@@ -300,8 +354,14 @@ fn golden_energies_n500_uniform() {
     let fmax = f.iter().map(|v| v.abs().max_element()).fold(0.0, f64::max);
     let want_max = num(&json["perturbed_max_abs_vertex_force_pN"]);
     println!("golden force on vertex 0 {:?} vs {want0:?}: rel {err0:.1e}", f[0]);
-    println!("golden max |f_k| {fmax:.15e} vs {want_max:.15e}: rel {:.1e}", (fmax / want_max - 1.0).abs());
-    println!("(largest vertex-force norm: {:.6} pN)", f.iter().map(|v| v.length()).fold(0.0, f64::max));
+    println!(
+        "golden max |f_k| {fmax:.15e} vs {want_max:.15e}: rel {:.1e}",
+        (fmax / want_max - 1.0).abs()
+    );
+    println!(
+        "(largest vertex-force norm: {:.6} pN)",
+        f.iter().map(|v| v.length()).fold(0.0, f64::max)
+    );
     assert!(err0 < 1e-10);
     assert!((fmax / want_max - 1.0).abs() < 1e-10);
 }
@@ -329,9 +389,15 @@ fn stress_free_has_no_in_plane_force_at_rest() {
     let uni_rms = (fu.iter().map(|v| v.length_squared()).sum::<f64>() / fu.len() as f64).sqrt();
     let d = sf.persistence_ratio_distribution();
     let l = sf.rest_length_distribution();
-    println!("stress-free: max |f_in-plane| at rest = {sf_max:.3e} pN = {:.2e} f_link", sf_max / f_link);
+    println!(
+        "stress-free: max |f_in-plane| at rest = {sf_max:.3e} pN = {:.2e} f_link",
+        sf_max / f_link
+    );
     println!("uniform:     max |f_in-plane| at rest = {uni_max:.4} pN, rms {uni_rms:.4} pN");
-    println!("stress-free p_i/p: mean {:.5} min {:.5} max {:.5} rel sd {:.4}", d.mean, d.min, d.max, d.rel_sd);
+    println!(
+        "stress-free p_i/p: mean {:.5} min {:.5} max {:.5} rel sd {:.4}",
+        d.mean, d.min, d.max, d.rel_sd
+    );
     println!(
         "rest link lengths: mean {:.5} um = {:.4} L0, min {:.4} L0, max {:.4} L0, rel sd {:.4}",
         l.mean,
@@ -366,8 +432,19 @@ fn stress_free_has_no_in_plane_force_at_rest() {
 
     // With every term, the only force left at rest is bending (A = A0, V = V0).
     let (fall, e) = forces(&sf, &x, TermSet::ALL);
-    let (fb, _) = forces(&sf, &x, TermSet { bending: true, ..TermSet::NONE });
-    let diff = fall.iter().zip(&fb).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
+    let (fb, _) = forces(
+        &sf,
+        &x,
+        TermSet {
+            bending: true,
+            ..TermSet::NONE
+        },
+    );
+    let diff = fall
+        .iter()
+        .zip(&fb)
+        .map(|(a, b)| (*a - *b).length())
+        .fold(0.0, f64::max);
     assert!(diff < 1e-12 * f_link, "{diff}");
     assert!(e.area < 1e-20 && e.volume < 1e-20, "{e:?}");
 }
@@ -432,25 +509,46 @@ fn failures_are_errors() {
     x[0] *= 5.0;
     let e = model.add_forces(&x, &mut f).unwrap_err();
     assert!(matches!(e, ForceError::LinkOverstretched { .. }), "{e}");
-    assert!(matches!(model.energy(&x).unwrap_err(), ForceError::LinkOverstretched { .. }));
-    if let ForceError::LinkOverstretched { vertices, length, lmax, .. } = e {
+    assert!(matches!(
+        model.energy(&x).unwrap_err(),
+        ForceError::LinkOverstretched { .. }
+    ));
+    if let ForceError::LinkOverstretched {
+        vertices, length, lmax, ..
+    } = e
+    {
         assert!(vertices.contains(&0) && length >= lmax);
     }
     // non-finite position
     let mut x = mesh.vertices.clone();
     x[3].y = f64::NAN;
-    assert!(matches!(model.energy(&x).unwrap_err(), ForceError::NonFinitePosition { vertex: 3, .. }));
+    assert!(matches!(
+        model.energy(&x).unwrap_err(),
+        ForceError::NonFinitePosition { vertex: 3, .. }
+    ));
     // degenerate triangle: collapse one vertex onto another (the link then has length 0)
     let mut x = mesh.vertices.clone();
     let t = topo.triangles[5];
     x[t[0] as usize] = x[t[1] as usize];
-    assert!(matches!(model.energy(&x).unwrap_err(), ForceError::DegenerateTriangle { .. }));
+    assert!(matches!(
+        model.energy(&x).unwrap_err(),
+        ForceError::DegenerateTriangle { .. }
+    ));
     // wrong lengths
-    assert!(matches!(model.energy(&x[..5]).unwrap_err(), ForceError::WrongLength { .. }));
+    assert!(matches!(
+        model.energy(&x[..5]).unwrap_err(),
+        ForceError::WrongLength { .. }
+    ));
     let mut short = vec![DVec3::ZERO; 3];
-    assert!(matches!(model.add_forces(&mesh.vertices, &mut short).unwrap_err(), ForceError::WrongLength { .. }));
+    assert!(matches!(
+        model.add_forces(&mesh.vertices, &mut short).unwrap_err(),
+        ForceError::WrongLength { .. }
+    ));
     // bad constants
-    let bad = MembraneConstants { persistence_length: 0.0, ..c };
+    let bad = MembraneConstants {
+        persistence_length: 0.0,
+        ..c
+    };
     assert!(MembraneModel::uniform(&topo, &bad, 1.0, 1.0).is_err());
     let bad = MembraneConstants { lmax_over_l0: 1.0, ..c };
     assert!(MembraneModel::uniform(&topo, &bad, 1.0, 1.0).is_err());
@@ -480,7 +578,10 @@ fn add_forces_adds() {
 #[test]
 fn reference_state_serde_names() {
     assert_eq!(serde_json::to_string(&ReferenceState::Uniform).unwrap(), "\"uniform\"");
-    assert_eq!(serde_json::to_string(&ReferenceState::StressFree).unwrap(), "\"stress-free\"");
+    assert_eq!(
+        serde_json::to_string(&ReferenceState::StressFree).unwrap(),
+        "\"stress-free\""
+    );
     let r: ReferenceState = serde_json::from_str("\"stress-free\"").unwrap();
     assert_eq!(r, ReferenceState::StressFree);
 }
@@ -497,7 +598,6 @@ fn constants_from_params_units() {
     // C of Eq. 4 in pN·µm³ equals the SI value (J·m²) / 1e-30
     assert!((c.c_eq4_for(c.l0) / (p.c_j_m2 / 1e-30) - 1.0).abs() < 1e-12);
 }
-
 
 // ---------------------------------------------------------------------------------------------
 // Moduli (Eqs. 10, 11) on a flat periodic equilateral patch
@@ -534,7 +634,12 @@ fn periodic_patch(nx: usize, ny: usize, l0: f64) -> PeriodicPatch {
             triangles.push((id(i, j), id(ri, j + 1), id(li, j + 1), pur - p, pul - p));
         }
     }
-    PeriodicPatch { n: nx * ny, links, triangles, area: nx as f64 * l0 * ny as f64 * h }
+    PeriodicPatch {
+        n: nx * ny,
+        links,
+        triangles,
+        area: nx as f64 * l0 * ny as f64 * h,
+    }
 }
 
 /// In-plane energy (WLC + C/A) of the patch under the homogeneous deformation `f` (2×2 in
@@ -660,7 +765,11 @@ fn ka_kv_choice_under_stretching() {
     let params = ModelParams::coarse_grained(500, 300.0).unwrap();
     let (d_a, d_t) = crate::stretch::diameters(&x);
     println!("rest mesh: D_A {d_a:.3} D_T {d_t:.3} um");
-    for (ka, kv) in [(1e-3, 1e3), (DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2), (5e-3, 5e3)] {
+    for (ka, kv) in [
+        (1e-3, 1e3),
+        (DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2),
+        (5e-3, 5e3),
+    ] {
         let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, ka, kv);
         for reference in [ReferenceState::StressFree, ReferenceState::Uniform] {
             let model = MembraneModel::new(&topo, &x, &c, reference).unwrap();
@@ -693,7 +802,9 @@ fn hessian_stiffness_of_constraints() {
     let params = ModelParams::coarse_grained(500, 300.0).unwrap();
     let lam_max = |model: &MembraneModel| {
         let n = x.len();
-        let mut v: Vec<DVec3> = (0..n).map(|i| DVec3::new((i as f64).sin(), (i as f64 * 1.3).cos(), 0.3)).collect();
+        let mut v: Vec<DVec3> = (0..n)
+            .map(|i| DVec3::new((i as f64).sin(), (i as f64 * 1.3).cos(), 0.3))
+            .collect();
         let mut lam = 0.0;
         let h = 1e-6;
         for _ in 0..3000 {
@@ -709,10 +820,20 @@ fn hessian_stiffness_of_constraints() {
         }
         lam
     };
-    for (ka, kv) in [(0.0, 0.0), (1e-3, 1e3), (DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2), (5e-3, 5e3)] {
+    for (ka, kv) in [
+        (0.0, 0.0),
+        (1e-3, 1e3),
+        (DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2),
+        (5e-3, 5e3),
+    ] {
         let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, ka, kv);
         let model = MembraneModel::stress_free(&topo, &x, &c).unwrap();
-        println!("k_a {:.0} pN/um, k_v {:.0} pN/um^2: lambda_max = {:.2} pN/um", c.k_area, c.k_volume, lam_max(&model));
+        println!(
+            "k_a {:.0} pN/um, k_v {:.0} pN/um^2: lambda_max = {:.2} pN/um",
+            c.k_area,
+            c.k_volume,
+            lam_max(&model)
+        );
     }
     let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, 1e-3, 1e3);
     let model = MembraneModel::stress_free(&topo, &x, &c).unwrap();
@@ -819,7 +940,11 @@ fn table_one_numbers_for_docs() {
         assert!((c.c_eq4_for(c.l0) * 1e-30 / p.c_j_m2 - 1.0).abs() < 1e-12);
         // and in units where kBT = 1 and L0 = 1 (a DPD-like system), C/(kBT L0²) is N-independent up to p L0
         let cd = MembraneConstants::from_params(&p, p.l0_m, p.kbt_j, 0.0, 0.0);
-        println!("    N = {n}: in units of (L0, kBT): p = {:.5} L0, C = {:.5} kBT L0^2", cd.persistence_length, cd.c_eq4_for(1.0));
+        println!(
+            "    N = {n}: in units of (L0, kBT): p = {:.5} L0, C = {:.5} kBT L0^2",
+            cd.persistence_length,
+            cd.c_eq4_for(1.0)
+        );
     }
 }
 
@@ -852,7 +977,10 @@ fn parallel_forces_are_deterministic_and_match_serial() {
         let (f1, e1) = run_parallel(&model, &x, 1);
         let fnorm = fs.iter().map(|v| v.length()).fold(0.0, f64::max);
         let diff = fs.iter().zip(&f1).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
-        println!("parallel vs serial ({reference:?}, N = {}): max |df| = {diff:.1e} (max |f| {fnorm:.3})", x.len());
+        println!(
+            "parallel vs serial ({reference:?}, N = {}): max |df| = {diff:.1e} (max |f| {fnorm:.3})",
+            x.len()
+        );
         // a different summation order: round-off of the largest single contributions (the
         // volume gradient x_b × x_c/6 about vertex 0 reaches R² ~ 700 µm² on this 26 µm sphere)
         assert!(diff < 1e-11 * fnorm);
@@ -860,7 +988,10 @@ fn parallel_forces_are_deterministic_and_match_serial() {
         for t in [2, 3, 8] {
             let (ft, et) = run_parallel(&model, &x, t);
             assert_eq!(et, e1, "{t} threads");
-            assert!(ft.iter().zip(&f1).all(|(a, b)| a.to_array() == b.to_array()), "{t} threads");
+            assert!(
+                ft.iter().zip(&f1).all(|(a, b)| a.to_array() == b.to_array()),
+                "{t} threads"
+            );
         }
     }
     // errors come out too
@@ -869,7 +1000,10 @@ fn parallel_forces_are_deterministic_and_match_serial() {
     y[5000] *= 3.0;
     let mut ws = model.workspace();
     let mut f = vec![DVec3::ZERO; y.len()];
-    assert!(matches!(model.add_forces_parallel(&y, &mut f, &mut ws), Err(ForceError::LinkOverstretched { .. })));
+    assert!(matches!(
+        model.add_forces_parallel(&y, &mut f, &mut ws),
+        Err(ForceError::LinkOverstretched { .. })
+    ));
 }
 
 /// The stress-free construction on meshes from `meshgen` (ignored: slow, and depends on the
@@ -881,7 +1015,8 @@ fn stress_free_on_generated_meshes() {
     for (n, seed) in [(500, 1), (500, 2), (1000, 1), (5000, 1)] {
         let c = constants_um(n, DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2);
         let t = std::time::Instant::now();
-        let (mesh, report) = crate::meshgen::generate(&shape, &c, &crate::meshgen::MeshGenOptions::new(n, seed)).unwrap();
+        let (mesh, report) =
+            crate::meshgen::generate(&shape, &c, &crate::meshgen::MeshGenOptions::new(n, seed)).unwrap();
         let topo = mesh.topology().unwrap();
         match MembraneModel::stress_free_with_bounds(&topo, &mesh.vertices, &c, (1e-6, 1e6)) {
             Ok(sf) => {
