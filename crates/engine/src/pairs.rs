@@ -115,6 +115,25 @@ fn hit_force<K: PairKernel, const ONE: bool>(
     (j, h.dr, kern.force(h.dr, h.r2, vi - cl.vel[j], xi))
 }
 
+/// Appends the neighbour cell range `(a, e, shift)` to `nb[..*len]`, merging it into the previous
+/// entry when contiguous in the sorted arrays with the same shift (the cells x−1, x, x+1 of a
+/// row are adjacent unless the row wraps). Visiting order is unchanged, so results are too.
+#[inline(always)]
+fn push_range(nb: &mut [(usize, usize, DVec3)], len: &mut usize, a: usize, e: usize, sh: DVec3) {
+    if a == e {
+        return;
+    }
+    if *len > 0 {
+        let last = &mut nb[*len - 1];
+        if last.1 == a && last.2 == sh {
+            last.1 = e;
+            return;
+        }
+    }
+    nb[*len] = (a, e, sh);
+    *len += 1;
+}
+
 /// Computes the pair forces of the cell-sorted particles into `sf` (sorted order, overwritten)
 /// and returns the pair virial Σ_pairs r_ij ⊗ f_ij (zero unless `virial`).
 pub fn compute<K: PairKernel>(
@@ -270,10 +289,11 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
                     continue;
                 }
                 let mut m = s1 - s0;
-                for (k, d) in HALF.iter().enumerate() {
+                let mut nnb = 0;
+                for d in HALF.iter() {
                     let (c, sh) = g.neighbour(x, y, z, *d);
                     let (a, e) = cl.range(c);
-                    nb[k] = (a, e, sh);
+                    push_range(&mut nb, &mut nnb, a, e, sh);
                     m += e - a;
                 }
                 hits.reserve(m);
@@ -288,7 +308,7 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
                     };
                     hits.n = 0;
                     hits.scan::<K, ONE>(row, cl, i + 1, s1, |pj| pi - pj);
-                    for &(a, e, sh) in &nb {
+                    for &(a, e, sh) in &nb[..nnb] {
                         let pis = pi - sh;
                         hits.scan::<K, ONE>(row, cl, a, e, |pj| pis - pj);
                     }
@@ -356,16 +376,15 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
             if s0 == s1 {
                 continue;
             }
-            let mut k = 0;
+            let mut nnb = 0;
             let mut m = 0;
             for dz in -1..=1 {
                 for dy in -1..=1 {
                     for dx in -1..=1 {
                         let (c, sh) = g.neighbour(x, y, z, [dx, dy, dz]);
                         let (a, e) = cl.range(c);
-                        nb[k] = (a, e, sh);
+                        push_range(&mut nb, &mut nnb, a, e, sh);
                         m += e - a;
-                        k += 1;
                     }
                 }
             }
@@ -380,7 +399,7 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
                     table.row(cl.ptype[i] as usize)
                 };
                 hits.n = 0;
-                for &(a, e, sh) in &nb {
+                for &(a, e, sh) in &nb[..nnb] {
                     if sh == DVec3::ZERO {
                         // j == i gives r² = 0 and is skipped.
                         hits.scan::<K, ONE>(row, cl, a, e, |pj| pi - pj);
