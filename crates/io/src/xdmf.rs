@@ -10,12 +10,30 @@ use crate::error::{IoError, Result};
 use crate::h5util::{dataset, get_attr, get_attr_array, link_exists, write_atomic};
 use crate::trajectory::{check_format, read_rows, valid_frames};
 
-/// `traj.h5` → `traj.xmf`.
+/// The two XDMF dialects ParaView reads. They differ only in how a frame of a dataset is
+/// selected: XDMF 2 uses a `HyperSlab` data item (ParaView's *XDMF Reader*, VisIt), Xdmf3 a
+/// `file.h5:/dataset|start:stride:count:dims` reference (ParaView's *Xdmf3ReaderS/T*), and each
+/// reader family ignores the other's form.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Flavor {
+    /// `FILE.xmf`: XDMF 2 with `ItemType="HyperSlab"` data items.
+    Xdmf2,
+    /// `FILE.xmf3`: Xdmf3 with `|start:stride:count:dims` hyperslab references.
+    Xdmf3,
+}
+
+/// `traj.h5` → `traj.xmf` (XDMF 2, *XDMF Reader*).
 pub fn xdmf_path(h5_path: &Path) -> PathBuf {
     h5_path.with_extension("xmf")
 }
 
-/// Writes `FILE.xmf` for the trajectory `h5_path` (opened read-only) and returns its path.
+/// `traj.h5` → `traj.xmf3` (Xdmf3, *Xdmf3ReaderS*); ParaView picks the reader from the extension.
+pub fn xdmf3_path(h5_path: &Path) -> PathBuf {
+    h5_path.with_extension("xmf3")
+}
+
+/// Writes `FILE.xmf` and `FILE.xmf3` for the trajectory `h5_path` (opened read-only) and returns
+/// the path of `FILE.xmf`.
 pub fn write_xdmf(h5_path: impl AsRef<Path>) -> Result<PathBuf> {
     let path = h5_path.as_ref();
     let file = hdf5::File::open(path).map_err(|source| IoError::Open {
@@ -28,10 +46,17 @@ pub fn write_xdmf(h5_path: impl AsRef<Path>) -> Result<PathBuf> {
 
 /// Writes the XDMF file for an already open trajectory.
 pub(crate) fn write_xdmf_for(h5_path: &Path, file: &hdf5::File) -> Result<PathBuf> {
-    let text = xdmf_text(h5_path, file)?;
+    let text = xdmf_text(h5_path, file, Flavor::Xdmf3)?;
+    write_atomic(&xdmf3_path(h5_path), text.as_bytes())?;
+    let text = xdmf_text(h5_path, file, Flavor::Xdmf2)?;
     let out = xdmf_path(h5_path);
     write_atomic(&out, text.as_bytes())?;
     Ok(out)
+}
+
+/// The XDMF text of an open trajectory in the given dialect.
+pub fn xdmf_text_of(h5_path: &Path, file: &hdf5::File, flavor: Flavor) -> Result<String> {
+    xdmf_text(h5_path, file, flavor)
 }
 
 fn dims(shape: &[usize]) -> String {
@@ -45,14 +70,37 @@ fn xml_escape(s: &str) -> String {
         .replace('"', "&quot;")
 }
 
-/// A `HyperSlab` data item selecting frame `frame` of the dataset `name` with shape `shape`.
-fn hyperslab(out: &mut String, indent: &str, h5name: &str, name: &str, shape: &[usize], frame: usize, number: &str) {
+/// A data item selecting frame `frame` of the dataset `name` with shape `shape`.
+#[allow(clippy::too_many_arguments)]
+fn hyperslab(
+    out: &mut String,
+    flavor: Flavor,
+    indent: &str,
+    h5name: &str,
+    name: &str,
+    shape: &[usize],
+    frame: usize,
+    number: &str,
+) {
     let nd = shape.len();
     let mut start = vec![0usize; nd];
     start[0] = frame;
     let stride = vec![1usize; nd];
     let mut count = shape.to_vec();
     count[0] = 1;
+    if flavor == Flavor::Xdmf3 {
+        let _ = writeln!(
+            out,
+            "{indent}<DataItem Dimensions=\"{}\" {number} Format=\"HDF\">{}:{name}|{}:{}:{}:{}</DataItem>",
+            dims(&count[1..]),
+            xml_escape(h5name),
+            dims(&start),
+            dims(&stride),
+            dims(&count),
+            dims(shape)
+        );
+        return;
+    }
     // The selected block without its frame axis: what the grid's topology expects.
     let _ = writeln!(
         out,
@@ -79,7 +127,7 @@ const F64: &str = "NumberType=\"Float\" Precision=\"8\"";
 const U32: &str = "NumberType=\"UInt\" Precision=\"4\"";
 const U8: &str = "NumberType=\"UChar\" Precision=\"1\"";
 
-fn xdmf_text(h5_path: &Path, file: &hdf5::File) -> Result<String> {
+fn xdmf_text(h5_path: &Path, file: &hdf5::File, flavor: Flavor) -> Result<String> {
     check_format(h5_path, file)?;
     let h5name = h5_path
         .file_name()
@@ -87,7 +135,14 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File) -> Result<String> {
         .unwrap_or_default();
     let mut out = String::new();
     out.push_str("<?xml version=\"1.0\" ?>\n<!DOCTYPE Xdmf SYSTEM \"Xdmf.dtd\" []>\n");
-    out.push_str("<Xdmf Version=\"3.0\" xmlns:xi=\"http://www.w3.org/2001/XInclude\">\n  <Domain>\n");
+    let version = match flavor {
+        Flavor::Xdmf2 => "2.0",
+        Flavor::Xdmf3 => "3.0",
+    };
+    let _ = writeln!(
+        out,
+        "<Xdmf Version=\"{version}\" xmlns:xi=\"http://www.w3.org/2001/XInclude\">\n  <Domain>"
+    );
     let path = h5_path;
 
     // Membrane surface.
@@ -130,11 +185,29 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File) -> Result<String> {
                     xml_escape(&h5name)
                 );
                 out.push_str("        </Topology>\n        <Geometry GeometryType=\"XYZ\">\n");
-                hyperslab(&mut out, "          ", &h5name, "/membrane/positions", &pos, f, F64);
+                hyperslab(
+                    &mut out,
+                    flavor,
+                    "          ",
+                    &h5name,
+                    "/membrane/positions",
+                    &pos,
+                    f,
+                    F64,
+                );
                 out.push_str("        </Geometry>\n");
                 if let Some(vel) = &vel {
                     out.push_str("        <Attribute Name=\"velocity\" AttributeType=\"Vector\" Center=\"Node\">\n");
-                    hyperslab(&mut out, "          ", &h5name, "/membrane/velocities", vel, f, F64);
+                    hyperslab(
+                        &mut out,
+                        flavor,
+                        "          ",
+                        &h5name,
+                        "/membrane/velocities",
+                        vel,
+                        f,
+                        F64,
+                    );
                     out.push_str("        </Attribute>\n");
                 }
                 out.push_str("      </Grid>\n");
@@ -177,16 +250,34 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File) -> Result<String> {
                     pos[1]
                 );
                 out.push_str("        <Geometry GeometryType=\"XYZ\">\n");
-                hyperslab(&mut out, "          ", &h5name, "/fluid/positions", &pos, f, F64);
+                hyperslab(
+                    &mut out,
+                    flavor,
+                    "          ",
+                    &h5name,
+                    "/fluid/positions",
+                    &pos,
+                    f,
+                    F64,
+                );
                 out.push_str("        </Geometry>\n");
                 if let Some(vel) = &vel {
                     out.push_str("        <Attribute Name=\"velocity\" AttributeType=\"Vector\" Center=\"Node\">\n");
-                    hyperslab(&mut out, "          ", &h5name, "/fluid/velocities", vel, f, F64);
+                    hyperslab(
+                        &mut out,
+                        flavor,
+                        "          ",
+                        &h5name,
+                        "/fluid/velocities",
+                        vel,
+                        f,
+                        F64,
+                    );
                     out.push_str("        </Attribute>\n");
                 }
                 if let Some(ty) = &types {
                     out.push_str("        <Attribute Name=\"type\" AttributeType=\"Scalar\" Center=\"Node\">\n");
-                    hyperslab(&mut out, "          ", &h5name, "/fluid/types", ty, f, U8);
+                    hyperslab(&mut out, flavor, "          ", &h5name, "/fluid/types", ty, f, U8);
                     out.push_str("        </Attribute>\n");
                 }
                 out.push_str("      </Grid>\n");
@@ -266,6 +357,7 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File) -> Result<String> {
                 );
                 hyperslab(
                     &mut out,
+                    flavor,
                     "          ",
                     &h5name,
                     &format!("{gname}/values"),

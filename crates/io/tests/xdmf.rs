@@ -98,18 +98,40 @@ fn check_item(item: &El, h5: &hdf5::File, h5name: &str) -> Vec<usize> {
                 );
             }
             assert_eq!(count[0], 1, "one frame per grid");
-            assert_eq!(declared, count[1..], "hyperslab Dimensions = count without the frame axis");
+            assert_eq!(
+                declared,
+                count[1..],
+                "hyperslab Dimensions = count without the frame axis"
+            );
             declared
         }
         _ => match item.attr("Format") {
             "HDF" => {
                 let text = item.text.trim();
-                let (file, ds) = text.split_once(':').expect("file:/dataset");
+                let (file, rest) = text.split_once(':').expect("file:/dataset");
                 assert_eq!(file, h5name, "refers to the file beside it");
+                // Xdmf3 hyperslab: `/dataset|start:stride:count:dims`.
+                let (ds, slab) = match rest.split_once('|') {
+                    Some((ds, slab)) => (ds, Some(slab)),
+                    None => (rest, None),
+                };
                 let d = h5.dataset(ds).unwrap_or_else(|_| panic!("dataset {ds} missing"));
-                assert_eq!(d.shape(), declared, "{ds}: Dimensions vs real shape");
                 let prec: usize = item.attr("Precision").parse().unwrap();
                 assert_eq!(d.dtype().unwrap().size(), prec, "{ds}: Precision");
+                let Some(slab) = slab else {
+                    assert_eq!(d.shape(), declared, "{ds}: Dimensions vs real shape");
+                    return declared;
+                };
+                let parts: Vec<Vec<usize>> = slab.split(':').map(dims).collect();
+                assert_eq!(parts.len(), 4, "start:stride:count:dims");
+                let (start, stride, count, full) = (&parts[0], &parts[1], &parts[2], &parts[3]);
+                assert_eq!(*full, d.shape(), "{ds}: hyperslab dims vs real shape");
+                for k in 0..full.len() {
+                    assert!(count[k] >= 1 && stride[k] >= 1);
+                    assert!(start[k] + (count[k] - 1) * stride[k] < full[k], "{ds}: out of bounds");
+                }
+                assert_eq!(count[0], 1, "one frame per grid");
+                assert_eq!(declared, count[1..], "{ds}: Dimensions = count without the frame axis");
                 declared
             }
             "XML" => {
@@ -130,10 +152,19 @@ fn product(v: &[usize]) -> usize {
     v.iter().product()
 }
 
+/// Checks both dialects and returns the frame count of each temporal collection.
 fn check_xdmf(h5_path: &Path) -> BTreeMap<String, usize> {
-    let xml = std::fs::read_to_string(h5_path.with_extension("xmf")).unwrap();
+    let a = check_xdmf_file(h5_path, &h5_path.with_extension("xmf"), "2.0");
+    let b = check_xdmf_file(h5_path, &h5_path.with_extension("xmf3"), "3.0");
+    assert_eq!(a, b);
+    a
+}
+
+fn check_xdmf_file(h5_path: &Path, xmf: &Path, version: &str) -> BTreeMap<String, usize> {
+    let xml = std::fs::read_to_string(xmf).unwrap();
     let root = parse(&xml);
     let xdmf = root.child("Xdmf");
+    assert_eq!(xdmf.attr("Version"), version);
     let domain = xdmf.child("Domain");
     let h5 = hdf5::File::open(h5_path).unwrap();
     let h5name = h5_path.file_name().unwrap().to_str().unwrap();

@@ -102,10 +102,10 @@ pub struct MembraneSection {
     /// Explicit persistence length in nm, replacing Eq. 12 (e.g. the fine model's 7.5).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub persistence_length_nm: Option<f64>,
-    /// Global area constraint k_a, N/m (default 5e-3 = 5000 pN/µm ≈ 600 μ0).
+    /// Global area constraint k_a, N/m (default 2e-3 = 2000 pN/µm ≈ 240 μ0).
     #[serde(default = "default_k_area")]
     pub area_constraint_n_per_m: f64,
-    /// Global volume constraint k_v, N/m² (default 5e3 = 5000 pN/µm²).
+    /// Global volume constraint k_v, N/m² (default 1e3 = 1000 pN/µm²).
     #[serde(default = "default_k_volume")]
     pub volume_constraint_n_per_m2: f64,
     /// A user's mesh (OFF, PLY or NAME.vertices.csv with NAME.triangles.csv, lengths in µm),
@@ -426,14 +426,14 @@ fn validate_membrane(m: &MembraneSection, c: &Check) -> Result<(), ScenarioError
         m.area_constraint_n_per_m,
         0.0,
         10.0,
-        "k_a in N/m between 0 and 10 (default 5e-3; the shear modulus is 8.3e-6)",
+        "k_a in N/m between 0 and 10 (default 2e-3; the shear modulus is 8.3e-6)",
     )?;
     c.range(
         "membrane.volume_constraint_n_per_m2",
         m.volume_constraint_n_per_m2,
         0.0,
         1e7,
-        "k_v in N/m² between 0 and 1e7 (default 5e3)",
+        "k_v in N/m² between 0 and 1e7 (default 1e3)",
     )?;
     Ok(())
 }
