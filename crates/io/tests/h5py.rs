@@ -34,7 +34,7 @@ with h5py.File(traj, "r") as f:
     p = pos[3]
     assert np.allclose(p.mean(axis=0), [3 * L, 0, 0], atol=1e-18), p.mean(axis=0)
     assert np.allclose(f["membrane/velocities"][2][0], [0, 0, 1e-3 * L / T])
-    force = f["membrane/scalars/force_pn"]
+    force = f["membrane/scalars/stretch_force"]
     assert force.attrs["units"] == "N" and np.isclose(force[3], 3e-12)
     v = f["fields/velocity/values"]
     assert v.shape == (2, 2, 3, 4, 3), v.shape   # (frames, nz, ny, nx, components)
@@ -81,7 +81,7 @@ fn h5py_reads_what_we_write() {
         let v = vec![DVec3::Z * 1e-3; p.len()];
         // 1 pN expressed in model force units (E/r = 1e-19/0.5e-6 N = 2e-13 N).
         let f = FrameScalar {
-            name: "force_pn",
+            name: "stretch_force",
             value: s as f64 * 1e-12 / 2e-13,
             quantity: Quantity::Force,
         };

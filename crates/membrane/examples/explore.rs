@@ -23,7 +23,7 @@ fn main() {
         let topo = mesh.topology().unwrap();
         let model = if stressfree {
             match MembraneModel::stress_free(&mesh.topology().unwrap(), &mesh.vertices, &c) {
-                Ok(m) => println!("{:?}", m.persistence_ratio_distribution()),
+                Ok(m) => println!("{:?}", m.tension_ratio_distribution()),
                 Err(e) => {
                     println!("{e}");
                     continue;

@@ -35,12 +35,11 @@ use serde::{Deserialize, Serialize};
 /// Relative area below which a triangle counts as degenerate (A < this × its reference area).
 pub const DEGENERATE_AREA_FRACTION: f64 = 1e-12;
 
-/// Default bounds on the per-link persistence-length ratio p_i/p of the stress-free reference:
-/// outside them the resting mesh is too far from equilateral for the construction to mean
-/// anything. A relaxed N = 500 cell mesh (the golden mesh) needs 0.62–5.28: links whose two
-/// opposite angles sum to nearly 180° carry almost no C/A tension, hence a large p_i. See
-/// docs/model.md; [`MembraneModel::stress_free_with_bounds`] takes other bounds.
-pub const PERSISTENCE_RATIO_BOUNDS: (f64, f64) = (0.1, 10.0);
+/// Bounds on the per-link C/A tension ratio T_i/f_WLC(L0) of the stress-free reference (1 on an
+/// equilateral mesh). A relaxed cell mesh has 0.07–1.7: links whose two opposite angles sum to
+/// nearly 180° carry almost no C/A tension. Outside these bounds the resting mesh is too far
+/// from equilateral for the construction to mean anything (e.g. a vertex squashed onto another).
+pub const TENSION_RATIO_BOUNDS: (f64, f64) = (-3.0, 5.0);
 
 /// Failures of the force evaluation or of building a model.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -75,23 +74,13 @@ pub enum ForceError {
         allowed: &'static str,
     },
     #[error(
-        "stress-free reference: link {link} ({}-{}) carries a non-positive C/A tension {tension}; the resting mesh is badly shaped",
-        vertices[0], vertices[1]
+        "stress-free reference: link {link} ({}-{}) carries a C/A tension of {ratio} times the WLC tension at L0, outside [{}, {}]; the resting mesh is badly shaped",
+        vertices[0], vertices[1], TENSION_RATIO_BOUNDS.0, TENSION_RATIO_BOUNDS.1
     )]
-    NonPositiveTension {
-        link: usize,
-        vertices: [u32; 2],
-        tension: f64,
-    },
-    #[error(
-        "stress-free reference: link {link} ({}-{}) needs p_i/p = {ratio}, outside [{}, {}]; the resting mesh is badly shaped",
-        vertices[0], vertices[1], bounds.0, bounds.1
-    )]
-    PersistenceRatioOutOfRange {
+    BadlyShapedMesh {
         link: usize,
         vertices: [u32; 2],
         ratio: f64,
-        bounds: (f64, f64),
     },
 }
 
@@ -329,12 +318,15 @@ pub struct MembraneModel {
     links: Vec<[u32; 2]>,
     triangles: Vec<[u32; 3]>,
     dihedrals: Vec<[u32; 4]>,
-    /// Per link: reference length ℓ_i, Lmax_i, and the WLC prefactor w_i = kBT/(4 p_i).
+    /// Per link: reference length ℓ_i, Lmax_i, and the WLC prefactor w_i = kBT/(4p).
     link_l0: Vec<f64>,
     link_lmax: Vec<f64>,
     link_w: Vec<f64>,
-    /// Per link: p_i / p (1 for the uniform reference).
-    link_p_ratio: Vec<f64>,
+    /// Per link: constant tension offset τ_i (force); the link energy is V_WLC(L) − τ_i (L − ℓ_i).
+    /// 0 for the uniform reference.
+    link_tau: Vec<f64>,
+    /// Per link: C/A tension at rest over the WLC tension at rest, T_i/f_i (1 on an equilateral mesh).
+    link_tension_ratio: Vec<f64>,
     /// Per triangle: C_α, and the area below which it counts as degenerate.
     tri_c: Vec<f64>,
     tri_amin: Vec<f64>,
@@ -377,7 +369,8 @@ impl MembraneModel {
             link_l0: vec![c.l0; ns],
             link_lmax: vec![lmax; ns],
             link_w: vec![c.kbt / (4.0 * c.persistence_length); ns],
-            link_p_ratio: vec![1.0; ns],
+            link_tau: vec![0.0; ns],
+            link_tension_ratio: vec![1.0; ns],
             tri_c: vec![cc; nt],
             tri_amin: vec![DEGENERATE_AREA_FRACTION * a_ref; nt],
             k_bend: c.k_bend,
@@ -392,26 +385,19 @@ impl MembraneModel {
     }
 
     /// The stress-free reference built from the resting positions `rest` (docs/model.md):
-    /// 1. link i: ℓ_i = its rest length, Lmax_i = `lmax_over_l0`·ℓ_i;
+    /// 1. link i: ℓ_i = its rest length, Lmax_i = `lmax_over_l0`·ℓ_i, the model's p;
     /// 2. triangle α: C_α from Eq. 4 with L0_α = √(4A_α/√3) (the equilateral side of its rest
     ///    area) and Lmax_α = `lmax_over_l0`·L0_α;
-    /// 3. link i: p_i such that its WLC tension at ℓ_i equals the sum of the C/A tensions
-    ///    T_i = Σ_α (C_α/A_α²) ∂A_α/∂L_i of its two triangles (p_i = p for an equilateral mesh);
+    /// 3. link i: the C/A tensions T_i = Σ_α (C_α/A_α²) ∂A_α/∂L_i of its two triangles balance its
+    ///    WLC tension f_i = V_WLC'(ℓ_i) exactly on an equilateral mesh; the remainder
+    ///    τ_i = f_i − T_i of a non-equilateral mesh is removed by a constant tension offset, the
+    ///    link energy being V_WLC(L) − τ_i (L − ℓ_i). This leaves every link's stiffness as the
+    ///    paper's (τ_i = 0 on an equilateral mesh);
     /// 4. A0, V0 = area and volume of `rest`.
     ///
-    /// `c.l0` is not used. Fails if some T_i ≤ 0 or p_i/p is outside
-    /// [`PERSISTENCE_RATIO_BOUNDS`] (a badly shaped mesh).
+    /// `c.l0` is not used. Fails if some T_i/f_i is outside [`TENSION_RATIO_BOUNDS`] (a badly
+    /// shaped mesh) or a rest triangle is degenerate.
     pub fn stress_free(topology: &Topology, rest: &[DVec3], c: &MembraneConstants) -> Result<Self, ForceError> {
-        Self::stress_free_with_bounds(topology, rest, c, PERSISTENCE_RATIO_BOUNDS)
-    }
-
-    /// As [`stress_free`](Self::stress_free) with explicit bounds `(min, max)` on p_i/p.
-    pub fn stress_free_with_bounds(
-        topology: &Topology,
-        rest: &[DVec3],
-        c: &MembraneConstants,
-        bounds: (f64, f64),
-    ) -> Result<Self, ForceError> {
         c.validate()?;
         let n = topology.n_vertices;
         check_positions(rest, n, "rest positions")?;
@@ -456,34 +442,25 @@ impl MembraneModel {
             }
         }
 
-        // Per-link WLC prefactor matching the C/A tension exactly: w_i g'(x0) = T_i.
-        let w_nominal = c.kbt / (4.0 * c.persistence_length);
-        let dg0 = kernels::wlc_dg(x0);
-        let mut link_w = Vec::with_capacity(ns);
-        let mut link_p_ratio = Vec::with_capacity(ns);
+        // Per-link tension offset: every link is at x0 = ℓ_i/Lmax_i at rest, so its WLC tension
+        // there is w g'(x0) with the model's w = kBT/(4p).
+        let w = c.kbt / (4.0 * c.persistence_length);
+        let f_rest = w * kernels::wlc_dg(x0);
+        let mut link_tau = Vec::with_capacity(ns);
+        let mut link_tension_ratio = Vec::with_capacity(ns);
         for (i, l) in topology.links.iter().enumerate() {
-            let t = tension[i];
-            if !(t > 0.0 && t.is_finite()) {
-                return Err(ForceError::NonPositiveTension {
-                    link: i,
-                    vertices: *l,
-                    tension: t,
-                });
-            }
-            // The nominal WLC tension of this link at its rest length, with the model's p.
-            let f_nominal = w_nominal * dg0;
-            let ratio = f_nominal / t; // p_i / p
-            if !(ratio >= bounds.0 && ratio <= bounds.1) {
-                return Err(ForceError::PersistenceRatioOutOfRange {
+            let ratio = tension[i] / f_rest;
+            if !(ratio >= TENSION_RATIO_BOUNDS.0 && ratio <= TENSION_RATIO_BOUNDS.1) {
+                return Err(ForceError::BadlyShapedMesh {
                     link: i,
                     vertices: *l,
                     ratio,
-                    bounds,
                 });
             }
-            link_w.push(t / dg0);
-            link_p_ratio.push(ratio);
+            link_tau.push(f_rest - tension[i]);
+            link_tension_ratio.push(ratio);
         }
+        let link_w = vec![w; ns];
 
         let mut model = Self {
             reference: ReferenceState::StressFree,
@@ -495,7 +472,8 @@ impl MembraneModel {
             link_l0,
             link_lmax,
             link_w,
-            link_p_ratio,
+            link_tau,
+            link_tension_ratio,
             tri_c,
             tri_amin,
             k_bend: c.k_bend,
@@ -567,7 +545,7 @@ impl MembraneModel {
                 let len = (x[l[1] as usize] - x[l[0] as usize]).length();
                 let (v, _) =
                     kernels::wlc(len, self.link_lmax[i], self.link_w[i]).ok_or_else(|| self.overstretched(i, len))?;
-                e.wlc += v;
+                e.wlc += v - self.link_tau[i] * (len - self.link_l0[i]);
             }
         }
         if terms.c_over_a {
@@ -628,9 +606,10 @@ impl MembraneModel {
                 let len = d.length();
                 let (v, t) =
                     kernels::wlc(len, self.link_lmax[i], self.link_w[i]).ok_or_else(|| self.overstretched(i, len))?;
-                e.wlc += v;
-                // tension t = dV/dL > 0 pulls the two ends together
-                let fv = d * (t / len);
+                let tau = self.link_tau[i];
+                e.wlc += v - tau * (len - self.link_l0[i]);
+                // tension t − τ = dE/dL > 0 pulls the two ends together
+                let fv = d * ((t - tau) / len);
                 f[ia] += fv;
                 f[ib] -= fv;
             }
@@ -758,13 +737,18 @@ impl MembraneModel {
     pub fn link_lmax(&self) -> &[f64] {
         &self.link_lmax
     }
-    /// Per-link persistence-length ratios p_i/p (all 1 for the uniform reference).
-    pub fn link_persistence_ratios(&self) -> &[f64] {
-        &self.link_p_ratio
+    /// Per-link tension offsets τ_i (force; all 0 for the uniform reference).
+    pub fn link_tension_offsets(&self) -> &[f64] {
+        &self.link_tau
     }
-    /// Distribution of p_i/p over the links.
-    pub fn persistence_ratio_distribution(&self) -> Distribution {
-        Distribution::of(&self.link_p_ratio)
+    /// Per-link C/A tension at rest over the WLC tension at rest, T_i/f_i (all 1 for the uniform
+    /// reference and for an equilateral mesh); τ_i = f_i (1 − T_i/f_i).
+    pub fn link_tension_ratios(&self) -> &[f64] {
+        &self.link_tension_ratio
+    }
+    /// Distribution of T_i/f_i over the links.
+    pub fn tension_ratio_distribution(&self) -> Distribution {
+        Distribution::of(&self.link_tension_ratio)
     }
     /// Distribution of the per-link rest lengths.
     pub fn rest_length_distribution(&self) -> Distribution {

@@ -151,7 +151,7 @@ pub fn prepare(s: &StretchingScenario) -> Result<Prepared, RunError> {
     let quality = mesh.quality()?;
     let mut info = json!({ "mesh": mesh_info, "mesh_quality": quality, "parameters": params, "reference": s.membrane.reference });
     if s.membrane.reference == ReferenceState::StressFree {
-        info["persistence_ratio_distribution"] = json!(model.persistence_ratio_distribution());
+        info["tension_ratio_distribution"] = json!(model.tension_ratio_distribution());
     }
     Ok(Prepared {
         params,

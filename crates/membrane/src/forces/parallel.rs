@@ -165,8 +165,9 @@ impl MembraneModel {
                         let len = d.length();
                         let (v, t) = kernels::wlc(len, self.link_lmax[i], self.link_w[i])
                             .ok_or_else(|| self.overstretched(i, len))?;
-                        s += v;
-                        *o = d * (t / len);
+                        let tau = self.link_tau[i];
+                        s += v - tau * (len - self.link_l0[i]);
+                        *o = d * ((t - tau) / len);
                     }
                     Ok(s)
                 })

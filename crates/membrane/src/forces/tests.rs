@@ -280,8 +280,8 @@ fn fd_gradients_icosphere() {
     let uni = MembraneModel::new(&topo, &rest, &c, ReferenceState::Uniform).unwrap();
     fd_all_terms("icosphere42 uniform", &uni, &x, h);
     let sf = MembraneModel::new(&topo, &rest, &c, ReferenceState::StressFree).unwrap();
-    let d = sf.persistence_ratio_distribution();
-    println!("icosphere42 stress-free p_i/p: {d:?}");
+    let d = sf.tension_ratio_distribution();
+    println!("icosphere42 stress-free T_i/f_i: {d:?}");
     assert!(d.max - d.min > 1e-3, "rest mesh should not be equilateral");
     fd_all_terms("icosphere42 stress-free", &sf, &x, h);
     // also a strongly folded configuration (bending far from θ0, some concave pairs)
@@ -387,7 +387,7 @@ fn stress_free_has_no_in_plane_force_at_rest() {
     let (fu, _) = forces(&uni, &x, TermSet::IN_PLANE);
     let uni_max = fu.iter().map(|v| v.length()).fold(0.0, f64::max);
     let uni_rms = (fu.iter().map(|v| v.length_squared()).sum::<f64>() / fu.len() as f64).sqrt();
-    let d = sf.persistence_ratio_distribution();
+    let d = sf.tension_ratio_distribution();
     let l = sf.rest_length_distribution();
     println!(
         "stress-free: max |f_in-plane| at rest = {sf_max:.3e} pN = {:.2e} f_link",
@@ -395,7 +395,7 @@ fn stress_free_has_no_in_plane_force_at_rest() {
     );
     println!("uniform:     max |f_in-plane| at rest = {uni_max:.4} pN, rms {uni_rms:.4} pN");
     println!(
-        "stress-free p_i/p: mean {:.5} min {:.5} max {:.5} rel sd {:.4}",
+        "stress-free T_i/f_i: mean {:.5} min {:.5} max {:.5} rel sd {:.4}",
         d.mean, d.min, d.max, d.rel_sd
     );
     println!(
@@ -410,25 +410,20 @@ fn stress_free_has_no_in_plane_force_at_rest() {
     // 1e-16 f_link; 1e-12 leaves three orders of margin and is still 10^9 below the uniform case.
     assert!(sf_max < 1e-12 * f_link, "stress-free in-plane force at rest {sf_max}");
     assert!(uni_max > 1e-2 * f_link, "uniform in-plane force at rest {uni_max}");
-    // the distribution measured on this mesh (0.620 – 5.278, mean 1.078): a few links whose
-    // opposite angles sum to nearly 180° carry little C/A tension and get a large p_i
-    assert!((d.min - 0.6196).abs() < 1e-3 && (d.max - 5.2775).abs() < 1e-3, "{d:?}");
-    let mut r = sf.link_persistence_ratios().to_vec();
+    // the distribution measured on this mesh (T_i/f_i = 0.1895 – 1.614): a few links whose
+    // opposite angles sum to nearly 180° carry little C/A tension and get a large offset τ_i
+    assert!((d.min - 0.18948).abs() < 1e-3 && (d.max - 1.6139).abs() < 1e-3, "{d:?}");
+    let mut r = sf.link_tension_ratios().to_vec();
     r.sort_by(|a, b| a.partial_cmp(b).unwrap());
     let q = |p: f64| r[((r.len() - 1) as f64 * p).round() as usize];
     println!(
-        "p_i/p quantiles: 1% {:.3} 5% {:.3} 50% {:.3} 95% {:.3} 99% {:.3}; links above 2: {}, above 4: {}",
+        "T_i/f_i quantiles: 1% {:.3} 5% {:.3} 50% {:.3} 95% {:.3} 99% {:.3}",
         q(0.01),
         q(0.05),
         q(0.5),
         q(0.95),
-        q(0.99),
-        r.iter().filter(|&&v| v > 2.0).count(),
-        r.iter().filter(|&&v| v > 4.0).count()
+        q(0.99)
     );
-    // mean link stiffness relative to nominal (the WLC stiffness of link i scales as p/p_i)
-    let inv = r.iter().map(|v| 1.0 / v).sum::<f64>() / r.len() as f64;
-    println!("mean p/p_i (relative WLC stiffness) = {inv:.4}");
 
     // With every term, the only force left at rest is bending (A = A0, V = V0).
     let (fall, e) = forces(&sf, &x, TermSet::ALL);
@@ -461,8 +456,11 @@ fn stress_free_of_an_equilateral_mesh_is_uniform() {
     let topo = mesh.topology().unwrap();
     let sf = MembraneModel::stress_free(&topo, &x, &c).unwrap();
     let uni = MembraneModel::new(&topo, &x, &c, ReferenceState::Uniform).unwrap();
-    for r in sf.link_persistence_ratios() {
+    for r in sf.link_tension_ratios() {
         assert!((r - 1.0).abs() < 1e-13, "{r}");
+    }
+    for t in sf.link_tension_offsets() {
+        assert!(t.abs() < 1e-12, "{t}");
     }
     for (a, b) in sf.triangle_c().iter().zip(uni.triangle_c()) {
         assert!((a / b - 1.0).abs() < 1e-13);
@@ -488,10 +486,7 @@ fn stress_free_rejects_badly_shaped_meshes() {
     x[a] = x[b] + 0.05 * (x[a] - x[b]);
     let err = MembraneModel::stress_free(&topo, &x, &c).unwrap_err();
     println!("badly shaped mesh: {err}");
-    assert!(matches!(
-        err,
-        ForceError::PersistenceRatioOutOfRange { .. } | ForceError::NonPositiveTension { .. }
-    ));
+    assert!(matches!(err, ForceError::BadlyShapedMesh { .. }));
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1018,15 +1013,15 @@ fn stress_free_on_generated_meshes() {
         let (mesh, report) =
             crate::meshgen::generate(&shape, &c, &crate::meshgen::MeshGenOptions::new(n, seed)).unwrap();
         let topo = mesh.topology().unwrap();
-        match MembraneModel::stress_free_with_bounds(&topo, &mesh.vertices, &c, (1e-6, 1e6)) {
+        match MembraneModel::stress_free(&topo, &mesh.vertices, &c) {
             Ok(sf) => {
-                let d = sf.persistence_ratio_distribution();
-                let mut r = sf.link_persistence_ratios().to_vec();
+                let d = sf.tension_ratio_distribution();
+                let mut r = sf.link_tension_ratios().to_vec();
                 r.sort_by(|a, b| a.partial_cmp(b).unwrap());
                 let (f, _) = forces(&sf, &mesh.vertices, TermSet::IN_PLANE);
                 let fm = f.iter().map(|v| v.length()).fold(0.0, f64::max);
                 println!(
-                    "N {n} seed {seed} ({:.0} s, {} steps, converged {}): p_i/p mean {:.3} min {:.3} max {:.3}, 99% {:.3}, > 4: {}, > 10: {}; max |f_in-plane| at rest {fm:.1e} pN",
+                    "N {n} seed {seed} ({:.0} s, {} steps, converged {}): T_i/f_i mean {:.3} min {:.3} max {:.3}, 99% {:.3}, < 0.2: {}, > 2: {}; max |f_in-plane| at rest {fm:.1e} pN",
                     t.elapsed().as_secs_f64(),
                     report.steps,
                     report.converged,
@@ -1034,8 +1029,8 @@ fn stress_free_on_generated_meshes() {
                     d.min,
                     d.max,
                     r[r.len() * 99 / 100],
-                    r.iter().filter(|&&v| v > 4.0).count(),
-                    r.iter().filter(|&&v| v > 10.0).count()
+                    r.iter().filter(|&&v| v < 0.2).count(),
+                    r.iter().filter(|&&v| v > 2.0).count()
                 );
             }
             Err(e) => println!("N {n} seed {seed}: {e}"),
