@@ -17,12 +17,14 @@ export HEMODPD_CACHE="$OUT/mesh-cache"
 rm -rf "$HEMODPD_CACHE"
 cargo build --release --quiet
 B=target/release/hemodpd
+UNIFORM_NS=${UNIFORM_NS:-"100 500 5000"}
 list=$(echo $NS | tr ' ' ',')
+ulist=$(echo $UNIFORM_NS | tr ' ' ',')
 
-for ref in stress-free uniform; do
-  $B sweep scenarios/stretching.toml --vary membrane.vertices=$list --set membrane.reference=$ref --out "$OUT/fig1-$ref" --quiet
-  $B plot "$OUT/fig1-$ref/sweep.json" -o "$FIG/fig1_stretching_$ref.png" --title "Stretching, $ref reference (Fig. 1)"
-done
+$B sweep scenarios/stretching.toml --vary membrane.vertices=$list --out "$OUT/fig1-stress-free" --quiet
+$B plot "$OUT/fig1-stress-free/sweep.json" -o "$FIG/fig1_stretching_stress-free.png" --title "Stretching, stress-free reference (Fig. 1)"
+$B sweep scenarios/stretching.toml --vary membrane.vertices=$ulist --set membrane.reference=uniform --out "$OUT/fig1-uniform" --quiet
+$B plot "$OUT/fig1-uniform/sweep.json" -o "$FIG/fig1_stretching_uniform.png" --title "Stretching, uniform L0 (the paper's literal convention)"
 
 $B sweep scenarios/stretching.toml --vary membrane.persistence_scale=0.9,1.0,1.1 --out "$OUT/inset" --quiet
 $B run scenarios/stretching.toml --set membrane.persistence_length_nm=7.5 --out "$OUT/inset/p=7.5nm" --quiet

@@ -22,6 +22,15 @@ fn object_name(loc: &Location, name: &str) -> String {
 /// Writes (or replaces) a scalar attribute.
 pub(crate) fn set_attr<T: H5Type>(path: &Path, loc: &Location, name: &str, value: T) -> Result<()> {
     let run = || -> hdf5::Result<()> {
+        // Rewrite in place when the attribute exists as a scalar (the per-frame `frames`
+        // counter): no object-header churn; otherwise replace it.
+        if has_attr(loc, name) {
+            if let Ok(a) = loc.attr(name) {
+                if a.is_scalar() && a.write_scalar(&value).is_ok() {
+                    return Ok(());
+                }
+            }
+        }
         replace_attr(loc, name)?;
         loc.new_attr::<T>().shape(()).create(name)?.write_scalar(&value)
     };
