@@ -22,9 +22,15 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Run a scenario file; writes DIR/summary.json and the scenario's output files.
+    /// Ctrl-C writes a checkpoint and a final frame; `--resume DIR` continues from it.
     Run {
         /// Scenario file (TOML, SI units).
-        scenario: PathBuf,
+        #[arg(required_unless_present = "resume")]
+        scenario: Option<PathBuf>,
+        /// Continue the interrupted run in DIR from its checkpoint (bit-identical to an
+        /// uninterrupted run); the output continues in DIR.
+        #[arg(long, value_name = "DIR", conflicts_with_all = ["scenario", "sets", "out"])]
+        resume: Option<PathBuf>,
         /// Override a key, e.g. --set membrane.vertices=1000 (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         sets: Vec<String>,
@@ -99,6 +105,18 @@ enum Command {
         #[arg(short = 'o', long)]
         output: PathBuf,
     },
+    /// Analyse a trajectory after the fact: per-frame centroid, velocity, diameters, principal
+    /// axes, inclination, asphericity, deformation index, area/volume deviation, and for shear
+    /// runs the tank-treading frequency and tumbling rate. Writes CSV and JSON (and PNGs with --plot).
+    Analyze {
+        trajectory: PathBuf,
+        /// Output directory (default: beside the trajectory, NAME.analysis/).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Also write PNG time series.
+        #[arg(long)]
+        plot: bool,
+    },
     /// Generate the relaxed Evans–Fung mesh with N vertices and write it (OFF, PLY or CSV by extension; µm).
     Mesh {
         #[arg(long)]
@@ -117,7 +135,17 @@ enum Command {
 
 fn main() {
     let cli = Cli::parse();
+    // First Ctrl-C: ask the run to checkpoint and stop; a second one exits at once.
+    let _ = ctrlc::set_handler(|| {
+        if hemodpd_scenario::INTERRUPTED.swap(true, std::sync::atomic::Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+    });
     if let Err(e) = dispatch(cli) {
+        if let Some(hemodpd_scenario::RunError::Interrupted { .. }) = e.downcast_ref::<hemodpd_scenario::RunError>() {
+            eprintln!("{e}");
+            std::process::exit(130);
+        }
         eprintln!("error: {e:#}");
         std::process::exit(1);
     }
@@ -127,11 +155,17 @@ fn dispatch(cli: Cli) -> Result<()> {
     match cli.command {
         Command::Run {
             scenario,
+            resume,
             sets,
             out,
             threads,
             quiet,
-        } => run(&scenario, &sets, out, threads, quiet),
+        } => match (scenario, resume) {
+            (_, Some(dir)) => resume_run(&dir, threads, quiet),
+            (Some(scenario), None) => run(&scenario, &sets, out, threads, quiet),
+            (None, None) => bail!("give a scenario file or --resume DIR"),
+        },
+        Command::Analyze { trajectory, out, plot } => analyze(&trajectory, out, plot),
         Command::Check { scenarios, sets } => {
             if scenarios.is_empty() {
                 bail!("no scenario files given");
@@ -142,11 +176,7 @@ fn dispatch(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
-        Command::Params {
-            n,
-            temperature_k,
-            json,
-        } => params(n, temperature_k, json),
+        Command::Params { n, temperature_k, json } => params(n, temperature_k, json),
         Command::Sweep {
             scenario,
             vary,
@@ -155,11 +185,7 @@ fn dispatch(cli: Cli) -> Result<()> {
             threads,
             quiet,
         } => sweep(&scenario, &vary, &sets, out, threads, quiet),
-        Command::Plot {
-            inputs,
-            output,
-            title,
-        } => plot(&inputs, &output, &title),
+        Command::Plot { inputs, output, title } => plot(&inputs, &output, &title),
         Command::Render {
             trajectory,
             frames,
@@ -176,13 +202,7 @@ fn dispatch(cli: Cli) -> Result<()> {
     }
 }
 
-fn run(
-    path: &Path,
-    sets: &[String],
-    out: Option<PathBuf>,
-    threads: Option<usize>,
-    quiet: bool,
-) -> Result<()> {
+fn run(path: &Path, sets: &[String], out: Option<PathBuf>, threads: Option<usize>, quiet: bool) -> Result<()> {
     run_one(path, sets, out, threads, quiet).map(|_| ())
 }
 
@@ -195,11 +215,7 @@ fn run_one(
     quiet: bool,
 ) -> Result<serde_json::Value> {
     let scenario = hemodpd_scenario::load(path, sets)?;
-    let threads = threads.unwrap_or_else(|| {
-        std::thread::available_parallelism()
-            .map(|n| n.get())
-            .unwrap_or(1)
-    });
+    let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
     if threads == 0 {
         bail!("--threads must be at least 1");
     }
@@ -208,11 +224,7 @@ fn run_one(
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| "run".into());
     let out_dir = out.unwrap_or_else(|| PathBuf::from("runs").join(stem));
-    let ctx = RunContext {
-        out_dir: out_dir.clone(),
-        threads,
-        progress: !quiet,
-    };
+    let ctx = RunContext::new(out_dir.clone(), threads, !quiet);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
@@ -229,8 +241,38 @@ fn run_one(
     let t0 = std::time::Instant::now();
     let results = pool
         .install(|| hemodpd_scenario::run(&scenario, &ctx))
-        .with_context(|| format!("running {}", path.display()))?;
+        .map_err(anyhow::Error::new)?;
     let wall = t0.elapsed().as_secs_f64();
+    write_summary(path, &scenario, sets, threads, wall, results, &out_dir, quiet)
+}
+
+fn resume_run(dir: &Path, threads: Option<usize>, quiet: bool) -> Result<()> {
+    let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+    let ctx = RunContext::new(dir.to_path_buf(), threads, !quiet);
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting the thread pool")?;
+    if !quiet {
+        eprintln!("hemodpd {}: resuming {}", env!("CARGO_PKG_VERSION"), dir.display());
+    }
+    let t0 = std::time::Instant::now();
+    let (scenario, results) = pool.install(|| hemodpd_scenario::resume(dir, &ctx)).map_err(anyhow::Error::new)?;
+    let wall = t0.elapsed().as_secs_f64();
+    let ck = dir.join(hemodpd_scenario::fluid::CHECKPOINT_FILE);
+    write_summary(&ck, &scenario, &[], threads, wall, results, dir, quiet)?;
+    Ok(())
+}
+
+/// Writes DIR/summary.json: the resolved scenario, seed, versions, wall time and results.
+#[allow(clippy::too_many_arguments)]
+fn write_summary(
+    path: &Path,
+    scenario: &hemodpd_scenario::Scenario,
+    sets: &[String],
+    threads: usize,
+    wall: f64,
+    results: serde_json::Value,
+    out_dir: &Path,
+    quiet: bool,
+) -> Result<serde_json::Value> {
     let summary = json!({
         "hemodpd_version": env!("CARGO_PKG_VERSION"),
         "versions": { "hemodpd": env!("CARGO_PKG_VERSION"), "scenario_format": hemodpd_scenario::FORMAT_VERSION, "trajectory_format": hemodpd_io::trajectory::TRAJECTORY_VERSION },
@@ -324,16 +366,9 @@ fn sweep(
     }
     let sweep = json!({ "scenario_file": path, "axes": axes, "runs": runs });
     hemodpd_io::summary::write_json_atomic(out_dir.join("sweep.json"), &sweep)?;
-    println!(
-        "{:<40} {:>10} {:>12} {:>12}",
-        "run", "wall (s)", "RMS D_A", "RMS D_T"
-    );
+    println!("{:<40} {:>10} {:>12} {:>12}", "run", "wall (s)", "RMS D_A", "RMS D_T");
     for r in &runs {
-        let f = |k: &str| {
-            r[k].as_f64()
-                .map(|v| format!("{v:.3}"))
-                .unwrap_or_else(|| "-".into())
-        };
+        let f = |k: &str| r[k].as_f64().map(|v| format!("{v:.3}")).unwrap_or_else(|| "-".into());
         println!(
             "{:<40} {:>10} {:>12} {:>12}",
             r["label"].as_str().unwrap_or(""),
@@ -368,8 +403,7 @@ fn split_values(s: &str) -> Vec<String> {
 }
 
 fn read_json(path: &Path) -> Result<serde_json::Value> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+    let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))
 }
 
@@ -415,13 +449,7 @@ fn plot(inputs: &[PathBuf], output: &Path, title: &str) -> Result<()> {
     Ok(())
 }
 
-fn render(
-    trajectory: &Path,
-    frames: &[usize],
-    columns: usize,
-    edges: bool,
-    output: &Path,
-) -> Result<()> {
+fn render(trajectory: &Path, frames: &[usize], columns: usize, edges: bool, output: &Path) -> Result<()> {
     let reader = hemodpd_io::TrajectoryReader::open(trajectory)?;
     let triangles = reader.triangles()?;
     let n = reader.membrane_frames()?;
@@ -434,10 +462,7 @@ fn render(
     let mut data = Vec::new();
     for &i in &frames {
         if i >= n {
-            bail!(
-                "{}: frame {i} requested, the file has {n} frames",
-                trajectory.display()
-            );
+            bail!("{}: frame {i} requested, the file has {n} frames", trajectory.display());
         }
         let f = reader.membrane_frame(i)?;
         let um: Vec<glam::DVec3> = f.positions.iter().map(|p| *p * 1e6).collect();
@@ -458,6 +483,23 @@ fn render(
     hemodpd_scenario::figures::render_shapes(output, &shapes, columns, edges)
         .map_err(|e| anyhow::anyhow!("rendering {}: {e}", output.display()))?;
     eprintln!("wrote {}", output.display());
+    Ok(())
+}
+
+fn analyze(trajectory: &Path, out: Option<PathBuf>, plot: bool) -> Result<()> {
+    use hemodpd_io::analysis;
+    let a = analysis::analyze_file(trajectory, &analysis::AnalysisOptions::default())?;
+    let out = out.unwrap_or_else(|| {
+        let stem = trajectory.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+        trajectory.with_file_name(format!("{stem}.analysis"))
+    });
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    analysis::write_csv(out.join("frames.csv"), &a.frames)?;
+    analysis::write_json(out.join("analysis.json"), &a)?;
+    if plot {
+        analysis::plot_time_series(&out, &a)?;
+    }
+    eprintln!("{} frames analysed -> {}", a.frames.len(), out.display());
     Ok(())
 }
 

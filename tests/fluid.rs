@@ -9,7 +9,7 @@ fn run(sets: &[&str]) -> serde_json::Value {
     let s = hemodpd_scenario::load(&path, &sets).unwrap();
     assert!(matches!(s, Scenario::DpdFluid(_)));
     let dir = tempfile::tempdir().unwrap();
-    let ctx = RunContext { out_dir: dir.path().to_path_buf(), threads: 1, progress: false };
+    let ctx = RunContext::new(dir.path(), 1, false);
     hemodpd_scenario::run(&s, &ctx).unwrap()
 }
 

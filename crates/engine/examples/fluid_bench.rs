@@ -8,9 +8,7 @@
 use std::time::Instant;
 
 use glam::DVec3;
-use hemodpd_engine::{
-    init, observe, EngineError, ForceField, ForceScheme, PairParams, SimConfig, Simulation,
-};
+use hemodpd_engine::{init, observe, EngineError, ForceField, ForceScheme, PairParams, SimConfig, Simulation};
 
 fn main() -> Result<(), EngineError> {
     let a: Vec<String> = std::env::args().skip(1).collect();

@@ -28,10 +28,7 @@ impl CellGrid {
     /// The finest grid with cells no smaller than `cutoff`; needs ≥ 3 cells per axis.
     pub fn new(domain: &PeriodicBox, cutoff: Real) -> Result<Self, EngineError> {
         if !(cutoff.is_finite() && cutoff > 0.0) {
-            return Err(EngineError::invalid(
-                "cutoff",
-                format!("must be > 0, got {cutoff}"),
-            ));
+            return Err(EngineError::invalid("cutoff", format!("must be > 0, got {cutoff}")));
         }
         let l = domain.lengths();
         let mut n = [0usize; 3];
@@ -151,13 +148,7 @@ impl CellList {
     /// should see for storage index i. Positions must be inside the box. The per-particle
     /// passes run in parallel (rayon); the counting sort itself is sequential, so the order is
     /// the same for any thread count.
-    pub fn build(
-        &mut self,
-        pos: &[DVec3],
-        ptype: &[u16],
-        id: &[u32],
-        vel_of: impl Fn(usize) -> DVec3 + Sync,
-    ) {
+    pub fn build(&mut self, pos: &[DVec3], ptype: &[u16], id: &[u32], vel_of: impl Fn(usize) -> DVec3 + Sync) {
         let n = pos.len();
         let nc = self.grid.ncells();
         let grid = self.grid;

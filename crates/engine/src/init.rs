@@ -66,12 +66,7 @@ fn normal_pair(rng: &mut Xoshiro256PlusPlus) -> (Real, Real) {
 /// A fluid filling the box of `config`: N = round(ρV) particles of `spec.ptype`,
 /// Maxwell–Boltzmann velocities at `spec.kbt` (mass from the force field) with zero total
 /// momentum, zero forces. Deterministic in `seed`.
-pub fn fluid(
-    config: &SimConfig,
-    field: &ForceField,
-    spec: &FluidSpec,
-    seed: u64,
-) -> Result<Particles, EngineError> {
+pub fn fluid(config: &SimConfig, field: &ForceField, spec: &FluidSpec, seed: u64) -> Result<Particles, EngineError> {
     let domain = PeriodicBox::new(config.box_lengths)?;
     if !(spec.density.is_finite() && spec.density > 0.0) {
         return Err(EngineError::invalid(
@@ -123,11 +118,7 @@ pub fn fluid(
                 ((l.y / a).ceil() as usize).max(1),
                 ((l.z / a).ceil() as usize).max(1),
             ];
-            let spacing = DVec3::new(
-                l.x / m[0] as Real,
-                l.y / m[1] as Real,
-                l.z / m[2] as Real,
-            );
+            let spacing = DVec3::new(l.x / m[0] as Real, l.y / m[1] as Real, l.z / m[2] as Real);
             let mut sites: Vec<[usize; 3]> = Vec::with_capacity(m[0] * m[1] * m[2]);
             for z in 0..m[2] {
                 for y in 0..m[1] {
@@ -183,10 +174,7 @@ mod tests {
     fn fluid_is_reproducible_and_momentum_free() {
         let cfg = SimConfig::new(DVec3::new(4.0, 5.0, 6.0), 0.01, 1);
         let field = ForceField::single(PairParams::groot_warren());
-        for placement in [
-            Placement::Random,
-            Placement::JitteredLattice { jitter: 0.2 },
-        ] {
+        for placement in [Placement::Random, Placement::JitteredLattice { jitter: 0.2 }] {
             let spec = FluidSpec {
                 placement,
                 ..FluidSpec::standard()

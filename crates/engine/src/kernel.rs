@@ -248,12 +248,7 @@ mod tests {
         let b = gen.force(dr, dr.length_squared(), dv, 0.4);
         assert!((a - b).length() < 1e-12 * a.length());
         // Dissipative part alone opposes the approach velocity along e.
-        let d = DpdLinear::new(&params(0.0, 4.5, 1.0), 0.01, true).force(
-            dr,
-            dr.length_squared(),
-            dv,
-            0.0,
-        );
+        let d = DpdLinear::new(&params(0.0, 4.5, 1.0), 0.01, true).force(dr, dr.length_squared(), dv, 0.0);
         assert!(d.dot(dr) * dv.dot(dr) < 0.0);
     }
 }

@@ -43,6 +43,7 @@ pub mod params;
 pub mod particles;
 pub mod rng;
 pub mod sim;
+pub mod walls;
 
 /// The floating-point type of the engine.
 pub type Real = f64;
@@ -52,6 +53,7 @@ pub use error::EngineError;
 pub use params::{ForceField, ForceScheme, PairParams, SimConfig, TypeSpec};
 pub use particles::{Particles, SimState, StateMut};
 pub use sim::{Extension, Simulation};
+pub use walls::{Reflection, WallConfig, WallShape, Walls};
 
 /// Convenience alias.
 pub type Result<T, E = EngineError> = std::result::Result<T, E>;

@@ -22,9 +22,7 @@ pub fn kinetic_energy(p: &Particles, field: &ForceField) -> Real {
 pub fn degrees_of_freedom(p: &Particles, field: &ForceField) -> Real {
     let types = field.types();
     let mobile = p.ptype.iter().filter(|&&t| !types[t as usize].frozen).count();
-    let conserved = types
-        .iter()
-        .all(|t| !t.frozen && t.body_force == DVec3::ZERO);
+    let conserved = types.iter().all(|t| !t.frozen && t.body_force == DVec3::ZERO);
     let dof = 3.0 * mobile as Real - if conserved { 3.0 } else { 0.0 };
     dof.max(1.0)
 }
@@ -38,11 +36,7 @@ pub fn temperature(p: &Particles, field: &ForceField) -> Real {
 
 /// Kinetic temperature of the velocities relative to `mean_vel(position)` (e.g. a binned
 /// flow profile); dof = 3 × mobile particles.
-pub fn peculiar_temperature(
-    p: &Particles,
-    field: &ForceField,
-    mean_vel: impl Fn(DVec3) -> DVec3,
-) -> Real {
+pub fn peculiar_temperature(p: &Particles, field: &ForceField, mean_vel: impl Fn(DVec3) -> DVec3) -> Real {
     let types = field.types();
     let mut e = 0.0;
     let mut n = 0usize;
@@ -68,12 +62,7 @@ pub fn momentum(p: &Particles, field: &ForceField) -> DVec3 {
 /// Pressure tensor P = (Σ m v ⊗ v + W)/V with W the pair virial Σ r_ij ⊗ f_ij returned by
 /// [`crate::Simulation::step_with_virial`] (conservative + dissipative + random). Frozen
 /// particles are skipped in the kinetic part.
-pub fn pressure_tensor(
-    p: &Particles,
-    field: &ForceField,
-    domain: &PeriodicBox,
-    virial: &DMat3,
-) -> DMat3 {
+pub fn pressure_tensor(p: &Particles, field: &ForceField, domain: &PeriodicBox, virial: &DMat3) -> DMat3 {
     let types = field.types();
     let mut k = DMat3::ZERO;
     for (v, &t) in p.vel.iter().zip(&p.ptype) {
@@ -108,12 +97,7 @@ pub struct Profile {
 impl Profile {
     /// `nbins` bins along `axis` (0 = x, 1 = y, 2 = z) of `domain`, counting particles of
     /// `types` (empty: every non-frozen type).
-    pub fn new(
-        domain: &PeriodicBox,
-        axis: usize,
-        nbins: usize,
-        types: Vec<u16>,
-    ) -> Result<Self, EngineError> {
+    pub fn new(domain: &PeriodicBox, axis: usize, nbins: usize, types: Vec<u16>) -> Result<Self, EngineError> {
         if axis > 2 || nbins == 0 {
             return Err(EngineError::invalid(
                 "profile",
@@ -195,7 +179,10 @@ pub fn block_average(data: &[Real], nblocks: usize) -> Result<(Real, Real), Engi
     if nblocks < 2 || data.len() < nblocks {
         return Err(EngineError::invalid(
             "block average",
-            format!("need ≥ 2 blocks and ≥ 1 sample per block: {} samples, {nblocks} blocks", data.len()),
+            format!(
+                "need ≥ 2 blocks and ≥ 1 sample per block: {} samples, {nblocks} blocks",
+                data.len()
+            ),
         ));
     }
     let m = data.len() / nblocks;

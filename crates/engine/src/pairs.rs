@@ -106,11 +106,7 @@ fn hit_force<K: PairKernel, const ONE: bool>(
     h: Hit,
 ) -> (usize, DVec3, DVec3) {
     let j = h.j as usize;
-    let kern = if ONE {
-        row[0]
-    } else {
-        row[cl.ptype[j] as usize]
-    };
+    let kern = if ONE { row[0] } else { row[cl.ptype[j] as usize] };
     let xi = pair_xi(key, idi, cl.id[j]);
     (j, h.dr, kern.force(h.dr, h.r2, vi - cl.vel[j], xi))
 }

@@ -57,11 +57,7 @@ impl Particles {
     /// Checks lengths, finiteness, type range and id uniqueness.
     pub fn validate(&self, field: &ForceField) -> Result<(), EngineError> {
         let n = self.pos.len();
-        if self.vel.len() != n
-            || self.force.len() != n
-            || self.ptype.len() != n
-            || self.id.len() != n
-        {
+        if self.vel.len() != n || self.force.len() != n || self.ptype.len() != n || self.id.len() != n {
             return Err(EngineError::invalid(
                 "particles",
                 format!(

@@ -17,9 +17,7 @@ use crate::cells::{CellGrid, CellList, MIN_LEN};
 use crate::error::{CAUSE_DT, CAUSE_FAST};
 use crate::kernel::DpdTable;
 use crate::rng::step_key;
-use crate::{
-    pairs, EngineError, ForceField, Particles, PeriodicBox, Real, SimConfig, SimState, StateMut,
-};
+use crate::{pairs, EngineError, ForceField, Particles, PeriodicBox, Real, SimConfig, SimState, StateMut};
 
 /// Hooks called by [`Simulation::step`]. Every method has a do-nothing default, and `()`
 /// implements the trait, so a plain fluid pays nothing (the calls are statically dispatched and
@@ -66,11 +64,7 @@ pub struct Simulation<E: Extension = ()> {
 impl Simulation<()> {
     /// A plain fluid. Validates everything, wraps positions into the box and computes the initial
     /// forces (force evaluation 0, with the initial velocities as the predicted velocities).
-    pub fn new(
-        config: SimConfig,
-        field: ForceField,
-        particles: Particles,
-    ) -> Result<Self, EngineError> {
+    pub fn new(config: SimConfig, field: ForceField, particles: Particles) -> Result<Self, EngineError> {
         Self::with_extension(config, field, particles, ())
     }
 }
@@ -278,22 +272,8 @@ impl<E: Extension> Simulation<E> {
         self.cells.build(&p.pos, &p.ptype, &p.id, vel_of);
         let key = step_key(self.config.seed, key_step);
         let w = match &self.table {
-            DpdTable::Linear(t) => pairs::compute(
-                self.config.scheme,
-                &self.cells,
-                t,
-                key,
-                &mut self.sforce,
-                virial,
-            ),
-            DpdTable::General(t) => pairs::compute(
-                self.config.scheme,
-                &self.cells,
-                t,
-                key,
-                &mut self.sforce,
-                virial,
-            ),
+            DpdTable::Linear(t) => pairs::compute(self.config.scheme, &self.cells, t, key, &mut self.sforce, virial),
+            DpdTable::General(t) => pairs::compute(self.config.scheme, &self.cells, t, key, &mut self.sforce, virial),
         };
         // Scatter back to storage order (a parallel gather through the inverse permutation),
         // adding the body forces on the way.
@@ -373,8 +353,7 @@ impl<E: Extension> Simulation<E> {
         // 2. extension: reflections
         {
             let (mut s, ext) = self.state_mut();
-            ext.after_position_update(&mut s)
-                .map_err(|e| wrap_ext(e, step))?;
+            ext.after_position_update(&mut s).map_err(|e| wrap_ext(e, step))?;
         }
 
         // 3. forces with the predicted velocity, noise of evaluation step + 1

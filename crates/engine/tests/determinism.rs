@@ -6,10 +6,7 @@ use common::{bits, standard};
 use hemodpd_engine::{ForceScheme, Simulation};
 
 fn run_in_pool(threads: usize, scheme: ForceScheme, steps: u64) -> (Vec<[u64; 3]>, Vec<[u64; 3]>) {
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .unwrap();
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
     pool.install(|| {
         // L = 7: an odd number of cell layers exercises the merged last slab.
         let mut sim = standard(7.0, 0.01, 99, scheme);

@@ -5,8 +5,8 @@ mod common;
 use common::standard;
 use glam::DVec3;
 use hemodpd_engine::{
-    init, EngineError, Extension, ForceField, ForceScheme, PairParams, Particles, SimConfig,
-    Simulation, StateMut, TypeSpec,
+    init, EngineError, Extension, ForceField, ForceScheme, PairParams, Particles, SimConfig, Simulation, StateMut,
+    TypeSpec,
 };
 
 /// Δt = 5 in the standard fluid: the first step moves particles by ~|v|Δt ≈ 8 ≫ one cell.
@@ -20,7 +20,10 @@ fn huge_time_step_is_reported() {
     let err = sim.run(10).unwrap_err();
     let msg = err.to_string();
     assert!(
-        matches!(err, EngineError::TooFast { step: 0, .. } | EngineError::NonFinite { step: 0, .. }),
+        matches!(
+            err,
+            EngineError::TooFast { step: 0, .. } | EngineError::NonFinite { step: 0, .. }
+        ),
         "{msg}"
     );
     assert!(msg.contains("step 0") && msg.contains("particle id"), "{msg}");
@@ -71,7 +74,15 @@ fn non_finite_force_is_reported() {
     let err = sim.run(10).unwrap_err();
     let msg = err.to_string();
     assert!(
-        matches!(err, EngineError::NonFinite { step: 3, index: 7, quantity: "force", .. }),
+        matches!(
+            err,
+            EngineError::NonFinite {
+                step: 3,
+                index: 7,
+                quantity: "force",
+                ..
+            }
+        ),
         "{msg}"
     );
     assert!(msg.contains("NaN"), "{msg}");
@@ -84,17 +95,45 @@ fn bad_input_is_rejected() {
     p.push(DVec3::ONE, DVec3::ZERO, 0, 0);
     let cases: Vec<(SimConfig, ForceField, Particles, &str)> = vec![
         // box smaller than 3 rc
-        (SimConfig::new(DVec3::new(4.0, 2.5, 4.0), 0.01, 1), field.clone(), p.clone(), "3 cutoffs"),
-        (SimConfig::new(DVec3::new(4.0, -1.0, 4.0), 0.01, 1), field.clone(), p.clone(), "box"),
-        (SimConfig::new(DVec3::splat(4.0), 0.0, 1), field.clone(), p.clone(), "time step"),
-        (SimConfig::new(DVec3::splat(4.0), f64::NAN, 1), field.clone(), p.clone(), "time step"),
         (
-            SimConfig { lambda: 1.5, ..SimConfig::new(DVec3::splat(4.0), 0.01, 1) },
+            SimConfig::new(DVec3::new(4.0, 2.5, 4.0), 0.01, 1),
+            field.clone(),
+            p.clone(),
+            "3 cutoffs",
+        ),
+        (
+            SimConfig::new(DVec3::new(4.0, -1.0, 4.0), 0.01, 1),
+            field.clone(),
+            p.clone(),
+            "box",
+        ),
+        (
+            SimConfig::new(DVec3::splat(4.0), 0.0, 1),
+            field.clone(),
+            p.clone(),
+            "time step",
+        ),
+        (
+            SimConfig::new(DVec3::splat(4.0), f64::NAN, 1),
+            field.clone(),
+            p.clone(),
+            "time step",
+        ),
+        (
+            SimConfig {
+                lambda: 1.5,
+                ..SimConfig::new(DVec3::splat(4.0), 0.01, 1)
+            },
             field.clone(),
             p.clone(),
             "lambda",
         ),
-        (SimConfig::new(DVec3::splat(4.0), 0.01, 1), field.clone(), Particles::default(), "no particles"),
+        (
+            SimConfig::new(DVec3::splat(4.0), 0.01, 1),
+            field.clone(),
+            Particles::default(),
+            "no particles",
+        ),
         (
             SimConfig::new(DVec3::splat(4.0), 0.01, 1),
             field.clone(),
@@ -142,7 +181,11 @@ fn bad_input_is_rejected() {
         assert!(err.to_string().contains(expect), "expected '{expect}' in '{err}'");
     }
     // Parameter validation in the force field itself.
-    let mut f = ForceField::new(vec![TypeSpec::new("a"), TypeSpec::frozen("wall")], PairParams::groot_warren()).unwrap();
+    let mut f = ForceField::new(
+        vec![TypeSpec::new("a"), TypeSpec::frozen("wall")],
+        PairParams::groot_warren(),
+    )
+    .unwrap();
     assert!(f.set_pair(0, 2, PairParams::groot_warren()).is_err());
     let mut bad = PairParams::groot_warren();
     bad.gamma = -1.0;
@@ -154,6 +197,9 @@ fn bad_input_is_rejected() {
     assert!(ForceField::new(vec![], PairParams::groot_warren()).is_err());
     // Density ≤ 0.
     let config = SimConfig::new(DVec3::splat(4.0), 0.01, 1);
-    let spec = init::FluidSpec { density: 0.0, ..init::FluidSpec::standard() };
+    let spec = init::FluidSpec {
+        density: 0.0,
+        ..init::FluidSpec::standard()
+    };
     assert!(init::fluid(&config, &f, &spec, 1).is_err());
 }

@@ -5,8 +5,7 @@ mod common;
 
 use glam::DVec3;
 use hemodpd_engine::{
-    init, observe, EngineError, Extension, ForceField, PairParams, SimConfig, Simulation,
-    StateMut, TypeSpec,
+    init, observe, EngineError, Extension, ForceField, PairParams, SimConfig, Simulation, StateMut, TypeSpec,
 };
 
 #[derive(Default)]

@@ -23,8 +23,7 @@ fn newton_third_law_in_the_pair_loop() {
             let mut p = Particles::default();
             p.push(xa, DVec3::new(0.7, -0.2, 0.1), 0, 10);
             p.push(xb, DVec3::new(-0.4, 0.3, 0.5), 0, 3);
-            let sim = Simulation::new(config, ForceField::single(PairParams::groot_warren()), p)
-                .unwrap();
+            let sim = Simulation::new(config, ForceField::single(PairParams::groot_warren()), p).unwrap();
             let f = &sim.particles().force;
             assert!(f[0].length() > 1.0);
             assert_eq!(f[0], -f[1], "{scheme:?}: {} vs {}", f[0], f[1]);

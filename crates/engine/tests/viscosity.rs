@@ -7,10 +7,7 @@
 mod common;
 
 use glam::DVec3;
-use hemodpd_engine::{
-    init, observe, EngineError, Extension, ForceField, PairParams, SimConfig, Simulation,
-    StateMut,
-};
+use hemodpd_engine::{init, observe, EngineError, Extension, ForceField, PairParams, SimConfig, Simulation, StateMut};
 
 struct ReversePoiseuille {
     g: f64,
@@ -39,15 +36,7 @@ fn fit_parabola(z: &[f64], y: &[f64], q: impl Fn(f64) -> f64) -> f64 {
 /// Runs the reverse-Poiseuille measurement; returns (η from each half, ⟨T⟩ peculiar).
 /// The fluid starts from the steady profile of η0 = 0.9 so that only the (small) mismatch has
 /// to relax (slowest mode τ = ρ Lz²/(4π² η) ≈ 8.4 for Lz = 10).
-pub fn reverse_poiseuille(
-    lxy: f64,
-    lz: f64,
-    g: f64,
-    neq: u64,
-    nsample: u64,
-    every: u64,
-    seed: u64,
-) -> (f64, f64, f64) {
+pub fn reverse_poiseuille(lxy: f64, lz: f64, g: f64, neq: u64, nsample: u64, every: u64, seed: u64) -> (f64, f64, f64) {
     let config = SimConfig::new(DVec3::new(lxy, lxy, lz), 0.01, seed);
     let field = ForceField::single(PairParams::groot_warren());
     let mut p = init::fluid(&config, &field, &init::FluidSpec::standard(), seed + 1).unwrap();

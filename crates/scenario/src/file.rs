@@ -172,6 +172,41 @@ pub struct FluidScenario {
     pub seed: u64,
     pub fluid: FluidSection,
     pub run: FluidRunSection,
+    #[serde(default)]
+    pub output: FluidOutput,
+}
+
+/// `[output]` of the fluid scenario. Steps count from the start of production.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidOutput {
+    /// Write a frame (particles and binned density/velocity) to `trajectory.h5` every this many
+    /// production steps; 0 (default) writes no trajectory.
+    #[serde(default)]
+    pub trajectory_every_steps: u64,
+    /// Store every this-many-th particle in a frame (default 1: all).
+    #[serde(default = "one_u64")]
+    pub particle_stride: u64,
+    /// Bins of the density/velocity field along z (default 20; 0: no field).
+    #[serde(default = "twenty")]
+    pub field_bins: u64,
+    /// Write `checkpoint.h5` every this many steps (counting equilibration); 0 (default): only
+    /// at the end and on Ctrl-C.
+    #[serde(default)]
+    pub checkpoint_every_steps: u64,
+}
+
+impl Default for FluidOutput {
+    fn default() -> Self {
+        Self { trajectory_every_steps: 0, particle_stride: 1, field_bins: 20, checkpoint_every_steps: 0 }
+    }
+}
+
+fn one_u64() -> u64 {
+    1
+}
+fn twenty() -> u64 {
+    20
 }
 
 fn f_rho() -> f64 {

@@ -1,80 +1,295 @@
 //! The periodic DPD fluid scenario (`kind = "dpd-fluid"`), in model units: equilibrate, then
 //! sample temperature and virial pressure; report means, block-averaged standard errors, and
 //! the throughput in particle-steps per second.
+//!
+//! Output and restarts: frames (particles, binned density and velocity) go to `trajectory.h5`
+//! every `output.trajectory_every_steps` production steps; `checkpoint.h5` is written atomically
+//! every `output.checkpoint_every_steps` steps, at the end, and on an interrupt (Ctrl-C). A run
+//! resumed from a checkpoint continues bit-identically: the engine's pair noise is a function of
+//! (seed, step, ids), the saved state includes the last forces, and the sampled series are saved
+//! with it. On resume the trajectory is cut back to the last scheduled frame at or before the
+//! checkpoint, so it ends up with exactly the frames of an uninterrupted run.
 
 use crate::file::FluidScenario;
 use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::init::{self, FluidSpec, Placement};
-use hemodpd_engine::{observe, ForceField, PairParams, SimConfig, Simulation};
+use hemodpd_engine::{observe, ForceField, PairParams, Particles, SimConfig, SimState, Simulation};
+use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::progress::{Progress, ProgressMode};
+use hemodpd_io::{GridSpec, RunMetadata, TrajectoryWriter, UnitSystem};
 use serde_json::json;
+use std::sync::atomic::Ordering;
 
 /// Groot & Warren (1997), Fig. 4: measured pressure of the standard fluid (ρ = 3, a = 25, kBT = 1).
 pub const GROOT_WARREN_PRESSURE_RHO3_A25: f64 = 23.7;
+
+/// Name of the checkpoint file in the output directory.
+pub const CHECKPOINT_FILE: &str = "checkpoint.h5";
+/// Name of the trajectory file in the output directory.
+pub const TRAJECTORY_FILE: &str = "trajectory.h5";
 
 fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
     RunError::Engine(e.to_string())
 }
 
-/// Builds the simulation of a fluid scenario.
-pub fn build(s: &FluidScenario) -> Result<Simulation, RunError> {
+fn out_err(e: hemodpd_io::IoError) -> RunError {
+    RunError::Output(e.to_string())
+}
+
+fn config_and_field(s: &FluidScenario) -> (SimConfig, ForceField) {
     let f = &s.fluid;
     let mut config = SimConfig::new(DVec3::from_array(f.box_size), s.run.timestep, s.seed);
     config.lambda = s.run.lambda;
     let field = ForceField::single(PairParams { a: f.a, gamma: f.gamma, kbt: f.kbt, rc: f.cutoff, s: f.weight_exponent });
+    (config, field)
+}
+
+/// Builds the simulation of a fluid scenario at step 0.
+pub fn build(s: &FluidScenario) -> Result<Simulation, RunError> {
+    let (config, field) = config_and_field(s);
+    let f = &s.fluid;
     let spec = FluidSpec { density: f.density, ptype: 0, kbt: f.kbt, placement: Placement::JitteredLattice { jitter: 0.1 }, first_id: 0 };
     let particles = init::fluid(&config, &field, &spec, s.seed).map_err(engine_err)?;
     Simulation::new(config, field, particles).map_err(engine_err)
 }
 
-/// Runs the scenario.
-pub fn run(s: &FluidScenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
-    let mut sim = build(s)?;
-    let n = sim.particles().len();
-    let total = s.run.equilibration_steps + s.run.steps;
-    let mode = if ctx.progress { ProgressMode::Auto } else { ProgressMode::Quiet };
-    let mut progress = Progress::new(total, 0, mode, 1.0, "τ");
-    let chunk = (total / 200).max(1);
-    let mut done = 0;
-    while done < s.run.equilibration_steps {
-        let k = chunk.min(s.run.equilibration_steps - done);
-        sim.run(k).map_err(engine_err)?;
-        done += k;
-        progress.update(done, sim.time());
+/// The fluid trajectory's units: DPD model units, stored as they are (no SI mapping).
+pub fn model_units() -> UnitSystem {
+    UnitSystem { length_m: 1.0, time_s: 1.0, energy_j: 1.0, label: "DPD model units (rc, kBT, m); no SI mapping".into() }
+}
+
+/// Is `step` (counted from 0, equilibration included) a frame of the trajectory schedule?
+fn frame_due(s: &FluidScenario, step: u64) -> bool {
+    let every = s.output.trajectory_every_steps;
+    let eq = s.run.equilibration_steps;
+    every > 0 && step >= eq && (step - eq) % every == 0
+}
+
+/// The last scheduled frame step at or before `step`, if any.
+fn last_frame_at_or_before(s: &FluidScenario, step: u64) -> Option<u64> {
+    let every = s.output.trajectory_every_steps;
+    let eq = s.run.equilibration_steps;
+    (every > 0 && step >= eq).then(|| eq + (step - eq) / every * every)
+}
+
+/// Sampled series and timing that a checkpoint carries.
+#[derive(Default)]
+struct Series {
+    temperature: Vec<f64>,
+    pressure: Vec<f64>,
+    production_seconds: f64,
+}
+
+fn save_checkpoint(s: &FluidScenario, ctx: &RunContext, sim: &Simulation, series: &Series) -> Result<(), RunError> {
+    let p = sim.particles();
+    let mut ck = Checkpoint::new(sim.step_count(), sim.time(), s.seed, toml::to_string(s).unwrap_or_default());
+    ck.set_scalar("scenario_kind", ScalarValue::Str("dpd-fluid".into()));
+    ck.insert_vec3("positions", &p.pos);
+    ck.insert_vec3("velocities", &p.vel);
+    ck.insert_vec3("forces", &p.force);
+    ck.insert_u32("types", p.ptype.iter().map(|&t| t as u32).collect());
+    ck.insert_u32("ids", p.id.clone());
+    ck.insert_f64("temperature_samples", series.temperature.clone());
+    ck.insert_f64("pressure_samples", series.pressure.clone());
+    ck.set_scalar("production_seconds", ScalarValue::F64(series.production_seconds));
+    ck.save_atomic(ctx.out_dir.join(CHECKPOINT_FILE)).map_err(out_err)
+}
+
+fn restore(s: &FluidScenario, ck: &Checkpoint) -> Result<(Simulation, Series), RunError> {
+    let (config, field) = config_and_field(s);
+    let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
+    let pos = ck.vec3s("positions", None).map_err(bad)?;
+    let n = pos.len();
+    let particles = Particles {
+        pos,
+        vel: ck.vec3s("velocities", Some(n)).map_err(bad)?,
+        force: ck.vec3s("forces", Some(n)).map_err(bad)?,
+        ptype: ck.u32s("types").map_err(bad)?.iter().map(|&t| t as u16).collect(),
+        id: ck.u32s("ids").map_err(bad)?.to_vec(),
+    };
+    if particles.ptype.len() != n || particles.id.len() != n {
+        return Err(RunError::Output(format!("checkpoint: {n} positions but {} types and {} ids", particles.ptype.len(), particles.id.len())));
     }
-    let (mut temps, mut pressures) = (Vec::new(), Vec::new());
-    let t0 = std::time::Instant::now();
-    for i in 0..s.run.steps {
-        if i % s.run.sample_every == 0 {
+    let state = SimState { config, field, particles, step: ck.step };
+    let sim = Simulation::from_state(state, ()).map_err(engine_err)?;
+    let series = Series {
+        temperature: ck.f64s("temperature_samples").map_err(bad)?.to_vec(),
+        pressure: ck.f64s("pressure_samples").map_err(bad)?.to_vec(),
+        production_seconds: ck.scalar_f64("production_seconds").map_err(bad)?,
+    };
+    Ok((sim, series))
+}
+
+/// Instantaneous density and mean velocity in `bins` slabs along z, as grid fields.
+fn binned_fields(sim: &Simulation, bins: usize) -> (GridSpec, Vec<f64>, Vec<f64>) {
+    let l = sim.config().box_lengths;
+    let dz = l.z / bins as f64;
+    let mut count = vec![0.0; bins];
+    let mut vel = vec![0.0; 3 * bins];
+    let p = sim.particles();
+    for (x, v) in p.pos.iter().zip(&p.vel) {
+        let k = ((x.z / dz) as usize).min(bins - 1);
+        count[k] += 1.0;
+        vel[3 * k] += v.x;
+        vel[3 * k + 1] += v.y;
+        vel[3 * k + 2] += v.z;
+    }
+    let slab = l.x * l.y * dz;
+    for k in 0..bins {
+        if count[k] > 0.0 {
+            for c in 0..3 {
+                vel[3 * k + c] /= count[k];
+            }
+        }
+        count[k] /= slab;
+    }
+    (GridSpec { origin: DVec3::ZERO, spacing: DVec3::new(l.x, l.y, dz), shape: [1, 1, bins] }, count, vel)
+}
+
+fn write_frame(s: &FluidScenario, w: &mut TrajectoryWriter, sim: &Simulation) -> Result<(), RunError> {
+    let p = sim.particles();
+    let stride = s.output.particle_stride as usize;
+    let pos: Vec<DVec3> = p.pos.iter().step_by(stride).copied().collect();
+    let vel: Vec<DVec3> = p.vel.iter().step_by(stride).copied().collect();
+    let types: Vec<u8> = p.ptype.iter().step_by(stride).map(|&t| t as u8).collect();
+    w.append_fluid_frame(sim.step_count(), sim.time(), &pos, Some(&vel), Some(&types)).map_err(out_err)?;
+    if s.output.field_bins > 0 {
+        let (grid, rho, vel) = binned_fields(sim, s.output.field_bins as usize);
+        w.append_field("density", sim.step_count(), sim.time(), &grid, 1, &rho, hemodpd_io::Quantity::NumberDensity).map_err(out_err)?;
+        w.append_field("velocity", sim.step_count(), sim.time(), &grid, 3, &vel, hemodpd_io::Quantity::Velocity).map_err(out_err)?;
+    }
+    Ok(())
+}
+
+/// Runs the scenario from step 0.
+pub fn run(s: &FluidScenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
+    run_from(s, ctx, None)
+}
+
+/// Runs the scenario, from a checkpoint when one is given.
+pub fn run_from(s: &FluidScenario, ctx: &RunContext, checkpoint: Option<&Checkpoint>) -> Result<serde_json::Value, RunError> {
+    let (mut sim, mut series) = match checkpoint {
+        Some(ck) => restore(s, ck)?,
+        None => (build(s)?, Series::default()),
+    };
+    let n = sim.particles().len();
+    let eq = s.run.equilibration_steps;
+    let total = eq + s.run.steps;
+    let start = sim.step_count();
+    if start > total {
+        return Err(RunError::Output(format!("checkpoint at step {start} is past the end of the run ({total} steps)")));
+    }
+    let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
+    let mut traj = if s.output.trajectory_every_steps > 0 {
+        Some(match checkpoint {
+            Some(_) if traj_path.exists() => {
+                // drop the frames after the checkpoint, and an off-schedule final frame written on interrupt
+                let keep = last_frame_at_or_before(s, start).map_or(0, |k| k + 1) as i64 - 1;
+                let cut = if keep < 0 { 0 } else { keep as u64 };
+                let mut w = TrajectoryWriter::open_append(&traj_path, cut).map_err(out_err)?;
+                if keep < 0 {
+                    // no scheduled frame yet: the file must hold none
+                    w.flush().map_err(out_err)?;
+                }
+                w
+            }
+            _ => {
+                let meta = RunMetadata::new("dpd-fluid", toml::to_string(s).unwrap_or_default(), s.seed, model_units());
+                TrajectoryWriter::create(&traj_path, &meta).map_err(out_err)?
+            }
+        })
+    } else {
+        None
+    };
+    let mode = if ctx.progress { ProgressMode::Auto } else { ProgressMode::Quiet };
+    let mut progress = Progress::new(total, start, mode, 1.0, "τ");
+    let report_every = (total / 200).max(1);
+    let mut t_prod = std::time::Instant::now();
+    let mut step = start;
+    while step < total {
+        // `step` steps are done; frame and checkpoint schedules refer to this state
+        if step > start || checkpoint.is_none() {
+            if let Some(w) = traj.as_mut() {
+                if frame_due(s, step) {
+                    write_frame(s, w, &sim)?;
+                }
+            }
+            let ck_every = s.output.checkpoint_every_steps;
+            if ck_every > 0 && step > start && step % ck_every == 0 {
+                series.production_seconds += t_prod.elapsed().as_secs_f64();
+                t_prod = std::time::Instant::now();
+                save_checkpoint(s, ctx, &sim, &series)?;
+            }
+        }
+        if crate::INTERRUPTED.load(Ordering::Relaxed) || ctx.stop_at_step == Some(step) {
+            if let Some(w) = traj.as_mut() {
+                if !frame_due(s, step) {
+                    write_frame(s, w, &sim)?; // the final frame; dropped again on resume
+                }
+                w.flush().map_err(out_err)?;
+            }
+            if step >= eq {
+                series.production_seconds += t_prod.elapsed().as_secs_f64();
+            }
+            save_checkpoint(s, ctx, &sim, &series)?;
+            progress.finish(step, sim.time());
+            return Err(RunError::Interrupted { step, dir: ctx.out_dir.clone() });
+        }
+        if step == eq {
+            t_prod = std::time::Instant::now();
+        }
+        let sample = step >= eq && (step - eq) % s.run.sample_every == 0;
+        if sample {
             let virial = sim.step_with_virial().map_err(engine_err)?;
-            temps.push(observe::temperature(sim.particles(), sim.field()));
-            pressures.push(observe::pressure(sim.particles(), sim.field(), sim.domain(), &virial));
+            series.temperature.push(observe::temperature(sim.particles(), sim.field()));
+            series.pressure.push(observe::pressure(sim.particles(), sim.field(), sim.domain(), &virial));
         } else {
             sim.step().map_err(engine_err)?;
         }
-        if (i + 1) % chunk == 0 {
-            progress.update(done + i + 1, sim.time());
+        step += 1;
+        if step % report_every == 0 {
+            progress.update(step, sim.time());
         }
     }
-    let seconds = t0.elapsed().as_secs_f64();
+    if let Some(w) = traj.as_mut() {
+        if frame_due(s, step) {
+            write_frame(s, w, &sim)?;
+        }
+    }
+    series.production_seconds += t_prod.elapsed().as_secs_f64();
+    save_checkpoint(s, ctx, &sim, &series)?;
+    if let Some(w) = traj {
+        w.close().map_err(out_err)?;
+    }
     progress.finish(total, sim.time());
     let stats = |d: &[f64]| observe::block_error(d).or_else(|_| observe::block_average(d, 2)).ok();
-    let (t_mean, t_se) = stats(&temps).unwrap_or((f64::NAN, f64::NAN));
-    let (p_mean, p_se) = stats(&pressures).unwrap_or((f64::NAN, f64::NAN));
+    let (t_mean, t_se) = stats(&series.temperature).unwrap_or((f64::NAN, f64::NAN));
+    let (p_mean, p_se) = stats(&series.pressure).unwrap_or((f64::NAN, f64::NAN));
     let momentum = observe::momentum(sim.particles(), sim.field());
-    let standard = (s.fluid.density - 3.0).abs() < 1e-12 && (s.fluid.a - 25.0).abs() < 1e-12 && (s.fluid.kbt - 1.0).abs() < 1e-12 && (s.fluid.cutoff - 1.0).abs() < 1e-12;
+    let f = &s.fluid;
+    let standard = (f.density - 3.0).abs() < 1e-12 && (f.a - 25.0).abs() < 1e-12 && (f.kbt - 1.0).abs() < 1e-12 && (f.cutoff - 1.0).abs() < 1e-12;
+    let p0 = sim.particles();
+    // a fingerprint of the final state: equal for runs that are bit-identical
+    let fingerprint = p0.pos.iter().chain(&p0.vel).fold(0u64, |h, v| {
+        [v.x, v.y, v.z].iter().fold(h, |h, c| (h ^ c.to_bits()).wrapping_mul(0x100000001b3))
+    });
     Ok(json!({
         "particles": n,
         "units": "DPD model units: length rc, energy kBT, mass m",
-        "temperature": { "mean": t_mean, "standard_error": t_se, "target": s.fluid.kbt, "relative_error": t_mean / s.fluid.kbt - 1.0, "samples": temps.len() },
+        "steps": total,
+        "resumed_from_step": checkpoint.map(|c| c.step),
+        "temperature": { "mean": t_mean, "standard_error": t_se, "target": f.kbt, "relative_error": t_mean / f.kbt - 1.0, "samples": series.temperature.len() },
         "pressure": {
-            "mean": p_mean, "standard_error": p_se, "samples": pressures.len(),
+            "mean": p_mean, "standard_error": p_se, "samples": series.pressure.len(),
             "groot_warren_measured": if standard { json!(GROOT_WARREN_PRESSURE_RHO3_A25) } else { serde_json::Value::Null },
         },
         "total_momentum": [momentum.x, momentum.y, momentum.z],
-        "throughput_particle_steps_per_s": n as f64 * s.run.steps as f64 / seconds,
-        "production_seconds": seconds,
+        "throughput_particle_steps_per_s": n as f64 * s.run.steps as f64 / series.production_seconds.max(1e-12),
+        "production_seconds": series.production_seconds,
+        "final_state_fingerprint": format!("{fingerprint:016x}"),
         "threads": rayon::current_num_threads(),
+        "trajectory_file": (s.output.trajectory_every_steps > 0).then(|| traj_path.clone()),
+        "checkpoint_file": ctx.out_dir.join(CHECKPOINT_FILE),
     }))
 }

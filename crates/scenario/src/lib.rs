@@ -14,7 +14,12 @@ pub mod stretching;
 
 pub use file::{load, load_str, Scenario, ScenarioError};
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicBool;
+
+/// Set (e.g. by a Ctrl-C handler) to ask a running scenario to stop: it writes a checkpoint and
+/// a final frame, then returns [`RunError::Interrupted`].
+pub static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
 /// Version of the scenario file format this build reads.
 pub const FORMAT_VERSION: u32 = 1;
@@ -28,6 +33,15 @@ pub struct RunContext {
     pub threads: usize,
     /// Show progress on stderr.
     pub progress: bool,
+    /// Behave as if interrupted when this step is reached (tests of checkpoint/resume).
+    pub stop_at_step: Option<u64>,
+}
+
+impl RunContext {
+    /// A context writing to `out_dir` with `threads` threads, progress on or off.
+    pub fn new(out_dir: impl Into<PathBuf>, threads: usize, progress: bool) -> Self {
+        Self { out_dir: out_dir.into(), threads, progress, stop_at_step: None }
+    }
 }
 
 /// Errors of a run (after the scenario was validated).
@@ -52,6 +66,31 @@ pub enum RunError {
         path: PathBuf,
         source: std::io::Error,
     },
+    #[error("interrupted at step {step}: checkpoint and final frame written; continue with `hemodpd run --resume {}`", dir.display())]
+    Interrupted { step: u64, dir: PathBuf },
+    #[error("cannot resume from {dir}: {message}")]
+    Resume { dir: PathBuf, message: String },
+}
+
+/// Resumes the run whose checkpoint is in `dir` (written by an earlier run into the same
+/// directory); returns the scenario it holds and the results. The output continues in `dir`.
+pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Value), RunError> {
+    let path = dir.join(fluid::CHECKPOINT_FILE);
+    let err = |message: String| RunError::Resume { dir: dir.to_path_buf(), message };
+    if !path.exists() {
+        return Err(err(format!("no {} there (only runs with time steps write checkpoints)", fluid::CHECKPOINT_FILE)));
+    }
+    let ck = hemodpd_io::checkpoint::Checkpoint::load(&path).map_err(|e| err(e.to_string()))?;
+    let scenario = load_str(&ck.scenario_toml, &format!("{} (scenario)", path.display()), &[]).map_err(|e| err(e.to_string()))?;
+    if scenario.seed() != ck.seed {
+        return Err(err(format!("checkpoint seed {} differs from its scenario's seed {}", ck.seed, scenario.seed())));
+    }
+    let ctx = RunContext { out_dir: dir.to_path_buf(), ..ctx.clone() };
+    let results = match &scenario {
+        Scenario::DpdFluid(s) => fluid::run_from(s, &ctx, Some(&ck))?,
+        other => return Err(err(format!("{} scenarios do not resume", other.kind()))),
+    };
+    Ok((scenario, results))
 }
 
 /// Runs a validated scenario; returns its results (the `results` object of `summary.json`).

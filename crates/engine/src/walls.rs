@@ -1,0 +1,947 @@
+//! Walls: a signed-distance geometry, frozen wall particles, reflection at the surface and the
+//! adaptive near-wall force (see `docs/walls.md`).
+//!
+//! * [`WallShape`]: the geometry. Sign convention: the signed distance `d(x)` is **negative in
+//!   the fluid and positive inside the wall**; `h = −d` is the distance of a fluid particle from
+//!   the surface. [`WallShape::normal`] is the unit gradient of `d` (it points from the fluid into
+//!   the wall). Adding a shape is adding one variant and its arms in the `match`es below.
+//! * [`build`]: cuts a walled system out of an equilibrated periodic fluid: particles with
+//!   `d < 0` stay fluid (type 0), those with `0 ≤ d ≤ thickness` become frozen wall particles
+//!   (type 1) carrying the local wall velocity (used only by the dissipative force; frozen
+//!   particles never move), the rest are dropped.
+//! * [`Walls`]: the [`Extension`]. `after_position_update` reflects every fluid particle that
+//!   crossed the surface (bounce-back or specular), counts the reflections and returns an
+//!   [`EngineError::Extension`] naming the step and the particle if one is still inside after
+//!   reflection. `add_forces` adds the per-bin wall-normal force `F_k` (positive = away from the
+//!   wall) to fluid particles with `0 ≤ h < rc`. `end_of_step` samples the near-wall density and,
+//!   while adaptation is on, applies the update law every `update_every` steps:
+//!   `F_k ← F_k + gain·(ρ_k/ρ0 − 1)`.
+//!
+//! A scene without walls uses `()` as its extension and none of this is compiled into its step.
+
+use glam::DVec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::sim::Extension;
+use crate::{
+    init, EngineError, ForceField, PairParams, Particles, PeriodicBox, Real, SimConfig, Simulation, StateMut, TypeSpec,
+};
+
+/// Type index of the fluid in a system made by [`build`].
+pub const FLUID_TYPE: u16 = 0;
+/// Type index of the (frozen) wall particles in a system made by [`build`].
+pub const WALL_TYPE: u16 = 1;
+
+/// The unit vector along axis `k`.
+fn unit(k: usize) -> DVec3 {
+    let mut e = DVec3::ZERO;
+    e[k] = 1.0;
+    e
+}
+
+/// The two axes other than `axis`, in increasing order.
+fn others(axis: usize) -> (usize, usize) {
+    match axis {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    }
+}
+
+/// Wall geometry from a signed distance (negative in the fluid, positive in the wall).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub enum WallShape {
+    /// A tube of circular cross-section along `axis`, periodic along it: the fluid is
+    /// `|x⊥ − centre| < radius`. `centre` holds the two other coordinates in increasing axis
+    /// order (for axis = z: (x, y)). The wall is at rest.
+    Cylinder {
+        /// 0 = x, 1 = y, 2 = z.
+        axis: usize,
+        /// Centre of the cross-section (the two other coordinates).
+        centre: [Real; 2],
+        /// Radius of the fluid region (length units).
+        radius: Real,
+    },
+    /// Two parallel plates normal to `axis`: the fluid is `lower < x_axis < upper`; the wall is
+    /// the rest of the periodic box along `axis` (`[0, lower) ∪ [upper, period)`, one slab across
+    /// the periodic boundary). Each plate moves with its own (tangential) velocity.
+    Plates {
+        /// Normal axis (0 = x, 1 = y, 2 = z).
+        axis: usize,
+        /// Lower surface position.
+        lower: Real,
+        /// Upper surface position.
+        upper: Real,
+        /// Box length along `axis` (the wall slab wraps around the periodic boundary).
+        period: Real,
+        /// Velocity of the lower plate.
+        lower_velocity: DVec3,
+        /// Velocity of the upper plate.
+        upper_velocity: DVec3,
+    },
+}
+
+impl WallShape {
+    /// Signed distance: negative in the fluid (−h, h the distance to the surface), positive
+    /// inside the wall (the depth).
+    #[inline]
+    pub fn signed_distance(&self, x: DVec3) -> Real {
+        match *self {
+            WallShape::Cylinder { axis, centre, radius } => {
+                let (a, b) = others(axis);
+                let (dx, dy) = (x[a] - centre[0], x[b] - centre[1]);
+                (dx * dx + dy * dy).sqrt() - radius
+            }
+            WallShape::Plates {
+                axis,
+                lower,
+                upper,
+                period,
+                ..
+            } => {
+                let z = x[axis];
+                if z > lower && z < upper {
+                    -(z - lower).min(upper - z)
+                } else if z <= lower {
+                    (lower - z).min(z + period - upper)
+                } else {
+                    (z - upper).min(lower + period - z)
+                }
+            }
+        }
+    }
+
+    /// Which surface is nearest to `x` (plates: 0 lower, 1 upper; cylinder: 0).
+    #[inline]
+    pub fn side(&self, x: DVec3) -> usize {
+        match *self {
+            WallShape::Cylinder { .. } => 0,
+            WallShape::Plates {
+                axis,
+                lower,
+                upper,
+                period,
+                ..
+            } => {
+                let z = x[axis];
+                let pd = |c: Real| {
+                    let d = (z - c).abs() % period;
+                    d.min(period - d)
+                };
+                let (to_lower, to_upper) = (pd(lower), pd(upper));
+                if to_lower <= to_upper {
+                    0
+                } else {
+                    1
+                }
+            }
+        }
+    }
+
+    /// Number of distinct surfaces ([`WallShape::side`] is below this).
+    pub fn sides(&self) -> usize {
+        match self {
+            WallShape::Cylinder { .. } => 1,
+            WallShape::Plates { .. } => 2,
+        }
+    }
+
+    /// Unit normal of the nearest surface, pointing from the fluid into the wall (the gradient
+    /// of the signed distance). On the cylinder's axis, where it is undefined, an arbitrary
+    /// radial direction.
+    #[inline]
+    pub fn normal(&self, x: DVec3) -> DVec3 {
+        match *self {
+            WallShape::Cylinder { axis, centre, .. } => {
+                let (a, b) = others(axis);
+                let mut d = DVec3::ZERO;
+                d[a] = x[a] - centre[0];
+                d[b] = x[b] - centre[1];
+                let l = d.length();
+                if l > 0.0 {
+                    d / l
+                } else {
+                    unit(a)
+                }
+            }
+            WallShape::Plates { axis, .. } => {
+                if self.side(x) == 0 {
+                    -unit(axis)
+                } else {
+                    unit(axis)
+                }
+            }
+        }
+    }
+
+    /// Velocity of the wall nearest to `x`.
+    #[inline]
+    pub fn wall_velocity(&self, x: DVec3) -> DVec3 {
+        match *self {
+            WallShape::Cylinder { .. } => DVec3::ZERO,
+            WallShape::Plates {
+                lower_velocity,
+                upper_velocity,
+                ..
+            } => {
+                if self.side(x) == 0 {
+                    lower_velocity
+                } else {
+                    upper_velocity
+                }
+            }
+        }
+    }
+
+    /// Volume of the fluid region in `domain`.
+    pub fn fluid_volume(&self, domain: &PeriodicBox) -> Real {
+        self.layer_volume(domain, 0.0, Real::INFINITY)
+    }
+
+    /// Volume of the fluid with `h0 ≤ h < h1` (h = −signed distance), all surfaces together.
+    pub fn layer_volume(&self, domain: &PeriodicBox, h0: Real, h1: Real) -> Real {
+        let l = domain.lengths();
+        match *self {
+            WallShape::Cylinder { axis, radius, .. } => {
+                let r0 = (radius - h0).max(0.0);
+                let r1 = (radius - h1).max(0.0);
+                std::f64::consts::PI * (r0 * r0 - r1 * r1) * l[axis]
+            }
+            WallShape::Plates { axis, lower, upper, .. } => {
+                let area = domain.volume() / l[axis];
+                let half = 0.5 * (upper - lower);
+                let w = (h1.min(half) - h0.min(half)).max(0.0);
+                2.0 * area * w
+            }
+        }
+    }
+
+    /// Checks the geometry against the box and a wall thickness (the wall must fit inside the
+    /// box without touching its own periodic images, and the fluid must be wider than 2 rc).
+    pub fn validate(&self, domain: &PeriodicBox, thickness: Real, rc: Real) -> Result<(), EngineError> {
+        let l = domain.lengths();
+        match *self {
+            WallShape::Cylinder { axis, centre, radius } => {
+                if axis > 2 {
+                    return Err(EngineError::invalid(
+                        "cylinder axis",
+                        format!("{axis} (must be 0, 1 or 2)"),
+                    ));
+                }
+                if !(radius.is_finite() && radius >= 2.0 * rc) {
+                    return Err(EngineError::invalid(
+                        "cylinder radius",
+                        format!("{radius} (must be ≥ 2 rc = {})", 2.0 * rc),
+                    ));
+                }
+                let (a, b) = others(axis);
+                for (c, k) in [(centre[0], a), (centre[1], b)] {
+                    let outer = radius + thickness;
+                    if !(c - outer >= 0.0 && c + outer <= l[k]) {
+                        return Err(EngineError::invalid(
+                            "cylinder",
+                            format!("radius {radius} + wall {thickness} around centre {c} does not fit in box edge {} along axis {k}", l[k]),
+                        ));
+                    }
+                }
+            }
+            WallShape::Plates {
+                axis,
+                lower,
+                upper,
+                period,
+                lower_velocity,
+                upper_velocity,
+            } => {
+                if axis > 2 {
+                    return Err(EngineError::invalid(
+                        "plates axis",
+                        format!("{axis} (must be 0, 1 or 2)"),
+                    ));
+                }
+                if (period - l[axis]).abs() > 1e-12 * l[axis] {
+                    return Err(EngineError::invalid(
+                        "plates period",
+                        format!("{period} ≠ box edge {}", l[axis]),
+                    ));
+                }
+                if !(lower >= 0.0 && upper > lower + 2.0 * rc && upper <= period) {
+                    return Err(EngineError::invalid(
+                        "plates",
+                        format!("need 0 ≤ lower < upper − 2 rc, upper ≤ box edge {period}; got lower {lower}, upper {upper}"),
+                    ));
+                }
+                if lower + period - upper < thickness.max(rc) {
+                    return Err(EngineError::invalid(
+                        "plates",
+                        format!(
+                            "wall slab {} thinner than the wall thickness {}",
+                            lower + period - upper,
+                            thickness.max(rc)
+                        ),
+                    ));
+                }
+                if !(lower_velocity.is_finite() && upper_velocity.is_finite())
+                    || lower_velocity[axis] != 0.0
+                    || upper_velocity[axis] != 0.0
+                {
+                    return Err(EngineError::invalid(
+                        "plate velocities",
+                        "must be finite and tangential",
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// How a fluid particle that crossed the surface is sent back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum Reflection {
+    /// Mirror the position through the surface; v → 2 u_wall − v (no slip).
+    #[default]
+    BounceBack,
+    /// Mirror the position; reverse only the normal component of v − u_wall (slip).
+    Specular,
+}
+
+/// What [`build`] makes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WallSetup {
+    /// The geometry.
+    pub shape: WallShape,
+    /// DPD parameters of fluid–fluid and wall–fluid pairs (wall–wall pairs do not interact).
+    pub pair: PairParams,
+    /// Number density of the fluid and of the wall (the wall is cut from the same fluid).
+    pub density: Real,
+    /// Thickness of the wall layer kept (≥ rc).
+    pub thickness: Real,
+    /// Steps of the periodic fluid before the cut (a few hundred equilibrate the standard fluid).
+    pub equilibration_steps: u64,
+}
+
+impl WallSetup {
+    /// Standard fluid (Groot–Warren, ρ = 3), wall thickness rc, 300 equilibration steps.
+    pub fn standard(shape: WallShape) -> Self {
+        Self {
+            shape,
+            pair: PairParams::groot_warren(),
+            density: 3.0,
+            thickness: 1.0,
+            equilibration_steps: 300,
+        }
+    }
+}
+
+/// The force field of a walled system: type 0 "solvent" (mobile), type 1 "wall" (frozen);
+/// solvent–solvent and solvent–wall pairs use `pair`, wall–wall pairs do not interact.
+pub fn wall_field(pair: PairParams) -> Result<ForceField, EngineError> {
+    let mut field = ForceField::new(vec![TypeSpec::new("solvent"), TypeSpec::frozen("wall")], pair)?;
+    field.set_pair(1, 1, PairParams::none())?;
+    Ok(field)
+}
+
+/// Builds a walled system in the box of `config`: a periodic fluid of `setup.density` is
+/// equilibrated for `setup.equilibration_steps` (same dt, λ and seed), then cut by the signed
+/// distance: `d < 0` → fluid (type 0, velocities kept), `0 ≤ d ≤ thickness` → frozen wall
+/// particles (type 1, velocity = the local wall velocity), the rest dropped. Ids are kept (unique,
+/// not contiguous). Deterministic in `seed`.
+pub fn build(config: &SimConfig, setup: &WallSetup, seed: u64) -> Result<(ForceField, Particles), EngineError> {
+    let domain = PeriodicBox::new(config.box_lengths)?;
+    let rc = setup.pair.rc;
+    if !(setup.thickness.is_finite() && setup.thickness >= rc) {
+        return Err(EngineError::invalid(
+            "wall thickness",
+            format!("{} (must be ≥ rc = {rc})", setup.thickness),
+        ));
+    }
+    setup.shape.validate(&domain, setup.thickness, rc)?;
+    let field1 = ForceField::single(setup.pair);
+    let spec = init::FluidSpec {
+        density: setup.density,
+        kbt: setup.pair.kbt,
+        ..init::FluidSpec::standard()
+    };
+    let p = init::fluid(config, &field1, &spec, seed)?;
+    let mut sim = Simulation::new(config.clone(), field1, p)?;
+    sim.run(setup.equilibration_steps)?;
+    let (state, ()) = sim.into_parts();
+    let src = state.particles;
+    let mut out = Particles::with_capacity(src.len());
+    for i in 0..src.len() {
+        let x = src.pos[i];
+        let d = setup.shape.signed_distance(x);
+        if d < 0.0 {
+            out.push(x, src.vel[i], FLUID_TYPE, src.id[i]);
+        } else if d <= setup.thickness {
+            out.push(x, setup.shape.wall_velocity(x), WALL_TYPE, src.id[i]);
+        }
+    }
+    Ok((wall_field(setup.pair)?, out))
+}
+
+/// Settings of the [`Walls`] extension.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WallConfig {
+    /// Reflection law (default bounce-back).
+    pub reflection: Reflection,
+    /// Number of bins N_b of the near-wall layer 0 ≤ h < rc (default 10; width rc/N_b).
+    pub bins: usize,
+    /// Cutoff rc: the thickness of the controlled layer.
+    pub rc: Real,
+    /// Gain α of the update law, force units per unit relative density error (default 2).
+    pub gain: Real,
+    /// Steps M averaged per update (default 500).
+    pub update_every: u64,
+    /// Adaptation on (default true). When off, the force profile is applied but not changed.
+    pub adapt: bool,
+    /// Target density ρ0; `None` (default): the fluid's mean density N_fluid / V_fluid, taken at
+    /// the first hook call (the only flat profile with the fluid's particle count).
+    pub target_density: Option<Real>,
+}
+
+impl Default for WallConfig {
+    fn default() -> Self {
+        Self {
+            reflection: Reflection::BounceBack,
+            bins: 10,
+            rc: 1.0,
+            gain: 2.0,
+            update_every: 500,
+            adapt: true,
+            target_density: None,
+        }
+    }
+}
+
+/// A near-wall force profile, keyed by the fluid parameters and the bin layout so that a later
+/// run of the same fluid can reuse it ([`WallForceProfile::to_csv`], [`WallForceProfile::from_csv`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WallForceProfile {
+    /// Fluid pair parameters.
+    pub pair: PairParams,
+    /// Fluid density the profile was made for.
+    pub density: Real,
+    /// Number of bins in 0 ≤ h < rc.
+    pub bins: usize,
+    /// F_k (force units, > 0 away from the wall), one per bin.
+    pub forces: Vec<Real>,
+    /// Update iterations that produced it.
+    pub iterations: usize,
+    /// Free text (shape), informational only.
+    pub note: String,
+}
+
+impl WallForceProfile {
+    /// All-zero profile.
+    pub fn zero(pair: PairParams, density: Real, bins: usize) -> Self {
+        Self {
+            pair,
+            density,
+            bins,
+            forces: vec![0.0; bins],
+            iterations: 0,
+            note: String::new(),
+        }
+    }
+
+    /// The integrated conservative force of a flat half-space of density ρ (g(r) = 1), at the
+    /// bin centres: F(h) = πρa(rc − h)³(rc + 3h)/(12 rc). The initial guess for walls *without*
+    /// frozen wall particles (with them, the wall particles already exert this force).
+    pub fn half_space(pair: PairParams, density: Real, bins: usize) -> Self {
+        let rc = pair.rc;
+        let forces = (0..bins)
+            .map(|k| {
+                let h = (k as Real + 0.5) * rc / bins as Real;
+                std::f64::consts::PI * density * pair.a * (rc - h).powi(3) * (rc + 3.0 * h) / (12.0 * rc)
+            })
+            .collect();
+        Self {
+            forces,
+            note: "half-space integral".into(),
+            ..Self::zero(pair, density, bins)
+        }
+    }
+
+    /// True when `other` was made for the same fluid and bins (parameters equal to 1e-12 rel).
+    pub fn matches(&self, pair: &PairParams, density: Real, bins: usize) -> bool {
+        let eq = |a: Real, b: Real| (a - b).abs() <= 1e-12 * a.abs().max(b.abs()).max(1.0);
+        bins == self.bins
+            && eq(density, self.density)
+            && eq(pair.a, self.pair.a)
+            && eq(pair.gamma, self.pair.gamma)
+            && eq(pair.kbt, self.pair.kbt)
+            && eq(pair.rc, self.pair.rc)
+            && eq(pair.s, self.pair.s)
+    }
+
+    /// CSV text: `#` key lines, then `bin,h_lo,h_hi,force`.
+    pub fn to_csv(&self) -> String {
+        let p = &self.pair;
+        let mut s = format!(
+            "# hemodpd adaptive wall force profile\n# a={:e} gamma={:e} kbt={:e} rc={:e} s={:e} density={:e} bins={} iterations={}\n# note={}\nbin,h_lo,h_hi,force\n",
+            p.a, p.gamma, p.kbt, p.rc, p.s, self.density, self.bins, self.iterations, self.note.replace('\n', " ")
+        );
+        let w = p.rc / self.bins as Real;
+        for (k, f) in self.forces.iter().enumerate() {
+            s += &format!("{k},{:e},{:e},{:e}\n", k as Real * w, (k + 1) as Real * w, f);
+        }
+        s
+    }
+
+    /// Parses [`WallForceProfile::to_csv`] output.
+    pub fn from_csv(text: &str) -> Result<Self, EngineError> {
+        let bad = |why: String| EngineError::invalid("wall force profile", why);
+        let mut pair = PairParams::none();
+        let (mut density, mut bins, mut iterations, mut note) = (Real::NAN, 0usize, 0usize, String::new());
+        let mut forces = Vec::new();
+        let mut have_key = false;
+        for line in text.lines() {
+            let line = line.trim();
+            if let Some(rest) = line.strip_prefix("# note=") {
+                note = rest.to_string();
+            } else if let Some(rest) = line.strip_prefix('#') {
+                if !rest.contains('=') {
+                    continue;
+                }
+                have_key = true;
+                for kv in rest.split_whitespace() {
+                    let (k, v) = kv.split_once('=').ok_or_else(|| bad(format!("bad key `{kv}`")))?;
+                    let num = || v.parse::<Real>().map_err(|_| bad(format!("bad value `{kv}`")));
+                    match k {
+                        "a" => pair.a = num()?,
+                        "gamma" => pair.gamma = num()?,
+                        "kbt" => pair.kbt = num()?,
+                        "rc" => pair.rc = num()?,
+                        "s" => pair.s = num()?,
+                        "density" => density = num()?,
+                        "bins" => bins = v.parse().map_err(|_| bad(format!("bad value `{kv}`")))?,
+                        "iterations" => iterations = v.parse().map_err(|_| bad(format!("bad value `{kv}`")))?,
+                        _ => return Err(bad(format!("unknown key `{k}`"))),
+                    }
+                }
+            } else if line.is_empty() || line.starts_with("bin,") {
+                continue;
+            } else {
+                let f = line
+                    .rsplit(',')
+                    .next()
+                    .and_then(|v| v.parse::<Real>().ok())
+                    .filter(|f| f.is_finite())
+                    .ok_or_else(|| bad(format!("bad row `{line}`")))?;
+                forces.push(f);
+            }
+        }
+        if !have_key || bins == 0 || forces.len() != bins || !density.is_finite() {
+            return Err(bad(format!(
+                "need the key line and {bins} rows, got {} rows",
+                forces.len()
+            )));
+        }
+        Ok(Self {
+            pair,
+            density,
+            bins,
+            forces,
+            iterations,
+            note,
+        })
+    }
+}
+
+/// One update of the adaptive control.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AdaptRecord {
+    /// Update number (1, 2, …).
+    pub iteration: usize,
+    /// Step counter at the update.
+    pub step: u64,
+    /// ρ_k/ρ0 averaged over the M steps before the update.
+    pub relative_density: Vec<Real>,
+    /// max_k |ρ_k/ρ0 − 1|.
+    pub max_deviation: Real,
+    /// F_k after the update.
+    pub forces: Vec<Real>,
+}
+
+/// The wall extension: reflection, adaptive near-wall force, near-wall density sampling.
+#[derive(Debug, Clone)]
+pub struct Walls {
+    shape: WallShape,
+    config: WallConfig,
+    forces: Vec<Real>,
+    counts: Vec<u64>,
+    samples: u64,
+    /// Cumulative counts (not reset by updates) for the measured profile.
+    total_counts: Vec<u64>,
+    total_samples: u64,
+    volumes: Vec<Real>,
+    rho0: Option<Real>,
+    reflections: u64,
+    impulse: Vec<DVec3>,
+    history: Vec<AdaptRecord>,
+    sampling: bool,
+}
+
+impl Walls {
+    /// A wall extension with an all-zero force profile.
+    pub fn new(shape: WallShape, config: WallConfig) -> Result<Self, EngineError> {
+        if config.bins == 0 || config.bins > 10_000 {
+            return Err(EngineError::invalid(
+                "wall bins",
+                format!("{} (must be 1..=10000)", config.bins),
+            ));
+        }
+        if !(config.rc.is_finite() && config.rc > 0.0) {
+            return Err(EngineError::invalid("wall rc", format!("{}", config.rc)));
+        }
+        if !(config.gain.is_finite() && config.gain >= 0.0) || config.update_every == 0 {
+            return Err(EngineError::invalid(
+                "wall control",
+                format!(
+                    "gain {} must be ≥ 0 and update_every {} > 0",
+                    config.gain, config.update_every
+                ),
+            ));
+        }
+        let nb = config.bins;
+        Ok(Self {
+            shape,
+            forces: vec![0.0; nb],
+            counts: vec![0; nb],
+            samples: 0,
+            total_counts: vec![0; nb],
+            total_samples: 0,
+            volumes: Vec::new(),
+            rho0: config.target_density,
+            reflections: 0,
+            impulse: vec![DVec3::ZERO; shape.sides()],
+            history: Vec::new(),
+            sampling: true,
+            config,
+        })
+    }
+
+    /// Starts from a saved profile (its bins must match the config's).
+    pub fn with_profile(mut self, profile: &WallForceProfile) -> Result<Self, EngineError> {
+        if profile.bins != self.config.bins || profile.forces.len() != self.config.bins {
+            return Err(EngineError::invalid(
+                "wall force profile",
+                format!("{} bins, the walls have {}", profile.bins, self.config.bins),
+            ));
+        }
+        self.forces = profile.forces.clone();
+        Ok(self)
+    }
+
+    /// The geometry.
+    pub fn shape(&self) -> &WallShape {
+        &self.shape
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &WallConfig {
+        &self.config
+    }
+
+    /// Current F_k.
+    pub fn forces(&self) -> &[Real] {
+        &self.forces
+    }
+
+    /// The current profile, keyed for reuse.
+    pub fn profile(&self, pair: PairParams, density: Real) -> WallForceProfile {
+        WallForceProfile {
+            pair,
+            density,
+            bins: self.config.bins,
+            forces: self.forces.clone(),
+            iterations: self.history.len(),
+            note: format!("{:?}", self.shape),
+        }
+    }
+
+    /// Turns adaptation on or off (the partial average of the current period is discarded).
+    pub fn set_adapt(&mut self, on: bool) {
+        self.config.adapt = on;
+        self.counts.iter_mut().for_each(|c| *c = 0);
+        self.samples = 0;
+    }
+
+    /// Turns near-wall density sampling on or off (off with adaptation off costs nothing).
+    pub fn set_sampling(&mut self, on: bool) {
+        self.sampling = on;
+    }
+
+    /// Clears the cumulative density profile, the reflection count and the impulses.
+    pub fn reset_measurements(&mut self) {
+        self.total_counts.iter_mut().for_each(|c| *c = 0);
+        self.total_samples = 0;
+        self.reflections = 0;
+        self.impulse.iter_mut().for_each(|p| *p = DVec3::ZERO);
+    }
+
+    /// Fluid particles reflected so far (since the last [`Walls::reset_measurements`]).
+    pub fn reflections(&self) -> u64 {
+        self.reflections
+    }
+
+    /// Momentum given to each surface by reflections (Σ m (v_before − v_after)).
+    pub fn impulse(&self) -> &[DVec3] {
+        &self.impulse
+    }
+
+    /// Adaptation history.
+    pub fn history(&self) -> &[AdaptRecord] {
+        &self.history
+    }
+
+    /// Target density ρ0 (known after the first step).
+    pub fn target_density(&self) -> Option<Real> {
+        self.rho0
+    }
+
+    /// Bin centres h_k.
+    pub fn bin_centres(&self) -> Vec<Real> {
+        let w = self.config.rc / self.config.bins as Real;
+        (0..self.config.bins).map(|k| (k as Real + 0.5) * w).collect()
+    }
+
+    /// Near-wall density ρ_k/ρ0 averaged since the last [`Walls::reset_measurements`].
+    pub fn relative_density(&self) -> Vec<Real> {
+        let rho0 = self.rho0.unwrap_or(1.0);
+        let s = self.total_samples.max(1) as Real;
+        self.total_counts
+            .iter()
+            .zip(&self.volumes)
+            .map(|(&c, &v)| c as Real / (s * v * rho0))
+            .collect()
+    }
+
+    fn init(&mut self, s: &StateMut<'_>) {
+        if self.volumes.is_empty() {
+            let w = self.config.rc / self.config.bins as Real;
+            self.volumes = (0..self.config.bins)
+                .map(|k| self.shape.layer_volume(s.domain, k as Real * w, (k + 1) as Real * w))
+                .collect();
+        }
+        if self.rho0.is_none() {
+            let types = s.field.types();
+            let n = s.ptype.iter().filter(|&&t| !types[t as usize].frozen).count();
+            self.rho0 = Some(n as Real / self.shape.fluid_volume(s.domain));
+        }
+    }
+
+    #[inline]
+    fn bin(&self, h: Real) -> Option<usize> {
+        if h >= 0.0 && h < self.config.rc {
+            Some(((h * self.config.bins as Real / self.config.rc) as usize).min(self.config.bins - 1))
+        } else {
+            None
+        }
+    }
+}
+
+impl Extension for Walls {
+    fn after_position_update(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        self.init(s);
+        let shape = self.shape;
+        let refl = self.config.reflection;
+        let frozen: Vec<bool> = s.field.types().iter().map(|t| t.frozen).collect();
+        let mass: Vec<Real> = s.field.types().iter().map(|t| t.mass).collect();
+        let domain = *s.domain;
+        // Reflect in parallel; collect (index, side, impulse, still-inside) of reflected
+        // particles in index order (deterministic for any thread count).
+        let events: Vec<(usize, usize, DVec3, bool)> = s
+            .pos
+            .par_iter_mut()
+            .zip(s.vel.par_iter_mut())
+            .zip(s.ptype.par_iter())
+            .enumerate()
+            .with_min_len(4096)
+            .filter_map(|(i, ((x, v), &t))| {
+                if frozen[t as usize] {
+                    return None;
+                }
+                let d = shape.signed_distance(*x);
+                if d <= 0.0 {
+                    return None;
+                }
+                let n = shape.normal(*x);
+                let u = shape.wall_velocity(*x);
+                let side = shape.side(*x);
+                let old = *v;
+                let y = domain.wrap(*x - n * (2.0 * d));
+                *v = match refl {
+                    Reflection::BounceBack => 2.0 * u - *v,
+                    Reflection::Specular => {
+                        let r = *v - u;
+                        u + r - n * (2.0 * r.dot(n))
+                    }
+                };
+                *x = y;
+                let inside = shape.signed_distance(y) > 0.0;
+                Some((i, side, (old - *v) * mass[t as usize], inside))
+            })
+            .collect();
+        for &(i, side, p, inside) in &events {
+            if inside {
+                return Err(EngineError::Extension {
+                    step: s.step,
+                    message: format!(
+                        "wall: fluid particle id {} (index {i}) is still inside the wall after reflection, at {} (signed distance {:.4} > 0), velocity {}; the particle crossed more than the fluid's width in one step (time step too large or a huge force)",
+                        s.id[i],
+                        s.pos[i],
+                        shape.signed_distance(s.pos[i]),
+                        s.vel[i]
+                    ),
+                });
+            }
+            self.impulse[side] += p;
+        }
+        self.reflections += events.len() as u64;
+        Ok(())
+    }
+
+    fn add_forces(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        self.init(s);
+        if self.forces.iter().all(|&f| f == 0.0) {
+            return Ok(());
+        }
+        let shape = self.shape;
+        let frozen: Vec<bool> = s.field.types().iter().map(|t| t.frozen).collect();
+        let this = &*self;
+        s.force
+            .par_iter_mut()
+            .zip(s.pos.par_iter())
+            .zip(s.ptype.par_iter())
+            .with_min_len(4096)
+            .for_each(|((f, x), &t)| {
+                if frozen[t as usize] {
+                    return;
+                }
+                let h = -shape.signed_distance(*x);
+                if let Some(k) = this.bin(h) {
+                    *f -= shape.normal(*x) * this.forces[k];
+                }
+            });
+        Ok(())
+    }
+
+    fn end_of_step(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        self.init(s);
+        if !(self.sampling || self.config.adapt) {
+            return Ok(());
+        }
+        let shape = self.shape;
+        let frozen: Vec<bool> = s.field.types().iter().map(|t| t.frozen).collect();
+        let nb = self.config.bins;
+        let this = &*self;
+        let counts = s
+            .pos
+            .par_iter()
+            .zip(s.ptype.par_iter())
+            .with_min_len(4096)
+            .fold(
+                || vec![0u64; nb],
+                |mut c, (x, &t)| {
+                    if !frozen[t as usize] {
+                        if let Some(k) = this.bin(-shape.signed_distance(*x)) {
+                            c[k] += 1;
+                        }
+                    }
+                    c
+                },
+            )
+            .reduce(
+                || vec![0u64; nb],
+                |mut a, b| {
+                    a.iter_mut().zip(b).for_each(|(x, y)| *x += y);
+                    a
+                },
+            );
+        for k in 0..nb {
+            self.total_counts[k] += counts[k];
+            self.counts[k] += counts[k];
+        }
+        self.total_samples += 1;
+        self.samples += 1;
+        if self.config.adapt && self.samples >= self.config.update_every {
+            let rho0 = self.rho0.unwrap_or(1.0);
+            let sm = self.samples as Real;
+            let rel: Vec<Real> = self
+                .counts
+                .iter()
+                .zip(&self.volumes)
+                .map(|(&c, &v)| c as Real / (sm * v * rho0))
+                .collect();
+            for (f, r) in self.forces.iter_mut().zip(&rel) {
+                *f += self.config.gain * (r - 1.0);
+            }
+            let max_deviation = rel.iter().map(|r| (r - 1.0).abs()).fold(0.0, Real::max);
+            self.history.push(AdaptRecord {
+                iteration: self.history.len() + 1,
+                step: s.step + 1,
+                relative_density: rel,
+                max_deviation,
+                forces: self.forces.clone(),
+            });
+            self.counts.iter_mut().for_each(|c| *c = 0);
+            self.samples = 0;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plates() -> WallShape {
+        WallShape::Plates {
+            axis: 2,
+            lower: 1.0,
+            upper: 7.0,
+            period: 9.0,
+            lower_velocity: DVec3::new(-1.0, 0.0, 0.0),
+            upper_velocity: DVec3::new(1.0, 0.0, 0.0),
+        }
+    }
+
+    #[test]
+    fn signed_distances() {
+        let c = WallShape::Cylinder {
+            axis: 2,
+            centre: [5.0, 5.0],
+            radius: 3.0,
+        };
+        assert!((c.signed_distance(DVec3::new(5.0, 5.0, 1.0)) + 3.0).abs() < 1e-12);
+        assert!((c.signed_distance(DVec3::new(9.0, 5.0, 1.0)) - 1.0).abs() < 1e-12);
+        assert!((c.normal(DVec3::new(5.0, 7.0, 0.0)) - DVec3::Y).length() < 1e-12);
+        let p = plates();
+        assert!((p.signed_distance(DVec3::new(0.0, 0.0, 2.0)) + 1.0).abs() < 1e-12);
+        assert!((p.signed_distance(DVec3::new(0.0, 0.0, 0.2)) - 0.8).abs() < 1e-12);
+        assert!((p.signed_distance(DVec3::new(0.0, 0.0, 8.9)) - 1.1).abs() < 1e-12); // across the boundary: 8.9 − 7 = 1.9 vs 1 + 0.1 = 1.1
+        assert_eq!(p.side(DVec3::new(0.0, 0.0, 8.9)), 0);
+        assert_eq!(p.side(DVec3::new(0.0, 0.0, 7.4)), 1);
+        assert_eq!(p.normal(DVec3::new(0.0, 0.0, 1.5)), -DVec3::Z);
+        assert_eq!(p.wall_velocity(DVec3::new(0.0, 0.0, 6.5)), DVec3::X);
+        let d = PeriodicBox::new(DVec3::new(4.0, 5.0, 9.0)).unwrap();
+        assert!((p.fluid_volume(&d) - 120.0).abs() < 1e-9);
+        assert!((p.layer_volume(&d, 0.0, 0.5) - 20.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn profile_csv_round_trip() {
+        let p = WallForceProfile::half_space(PairParams::groot_warren(), 3.0, 10);
+        let q = WallForceProfile::from_csv(&p.to_csv()).unwrap();
+        assert_eq!(p, q);
+        assert!(q.matches(&PairParams::groot_warren(), 3.0, 10));
+        assert!(!q.matches(&PairParams::groot_warren(), 4.0, 10));
+        let h0 = WallForceProfile::half_space(PairParams::groot_warren(), 3.0, 100_000);
+        assert!((h0.forces[0] - 19.63).abs() < 0.01, "{}", h0.forces[0]);
+        assert!(WallForceProfile::from_csv("bin,h_lo,h_hi,force\n0,0,1,2\n").is_err());
+    }
+}
