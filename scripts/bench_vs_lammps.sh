@@ -24,10 +24,10 @@ OUT="$(mktemp -d)"
 echo "# host: $(nproc) cpus, $(lscpu | sed -n 's/^Model name:[[:space:]]*//p' | head -1)"
 
 ours() { # L threads steps
-  "$BIN" "$1" "$2" "$3" "$NEQ_OURS" half | tee -a "$OUT/ours.txt"
+  "$BIN" "$1" "$2" "$3" "$NEQ_OURS" half | tee -a "$OUT/ours.$r.txt"
 }
-lammps20() { SKINS="${SKINS:-0.3}" NRUN40=0 bash "$LMP_SH" | tee -a "$OUT/lammps.txt"; }
-lammps40() { SKIP_L20=1 SKIN="${SKIN:-0.3}" bash "$LMP_SH" | tee -a "$OUT/lammps.txt"; }
+lammps20() { SKINS="${SKINS:-0.3}" NRUN40=0 bash "$LMP_SH" | tee -a "$OUT/lammps.$r.txt"; }
+lammps40() { SKIP_L20=1 SKIN="${SKIN:-0.3}" bash "$LMP_SH" | tee -a "$OUT/lammps.$r.txt"; }
 
 for r in $(seq 1 "$ROUNDS"); do
   echo "# round $r, load $(cut -d' ' -f1-3 /proc/loadavg)"
@@ -40,19 +40,21 @@ for r in $(seq 1 "$ROUNDS"); do
   fi
 done
 
-# median over rounds of each configuration, then the ratio
+# per round: ours / LAMMPS at equal thread count (2 threads: LAMMPS's faster of OpenMP and MPI)
+pss() { sed 's/.*: \([0-9.e+]*\) particle-steps.*/\1/' | sort -g | tail -1; }
 echo
-echo "| N | threads | hemodpd particle-steps/s | LAMMPS particle-steps/s | ratio |"
-echo "|---|---|---|---|---|"
-for L in 20 40; do
-  for t in 1 2; do
-    o=$(grep -E "^hemodpd L=$L N=[0-9]+ threads=$t " "$OUT/ours.txt" | sed 's/.*: \([0-9.e+]*\) particle-steps.*/\1/' | sort -g | awk '{a[NR]=$1} END{if(NR) print a[int((NR+1)/2)]}')
-    if [[ "$t" == 1 ]]; then pat="threads=1 dt=0.01 "; else pat="threads=2\((omp|mpi)\) dt=0.01 "; fi
-    # per round take the best LAMMPS 2-thread flavour; then the median over rounds
-    l=$(grep -E "^lammps L=$L N=[0-9]+ $pat" "$OUT/lammps.txt" | sed 's/.*: \([0-9.e+]*\) particle-steps.*/\1/' | sort -g | tail -n "$ROUNDS" | awk '{a[NR]=$1} END{if(NR) print a[int((NR+1)/2)]}')
-    [[ -z "$o" || -z "$l" ]] && continue
-    n=$(( 3 * L * L * L ))
-    awk -v n="$n" -v t="$t" -v o="$o" -v l="$l" 'BEGIN{printf "| %d | %d | %.3e | %.3e | %.2f |\n", n, t, o, l, o/l}'
+echo "| round | N | threads | hemodpd particle-steps/s | LAMMPS particle-steps/s | ratio |"
+echo "|---|---|---|---|---|---|"
+for r in $(seq 1 "$ROUNDS"); do
+  for L in 20 40; do
+    for t in 1 2; do
+      o=$(grep -E "^hemodpd L=$L N=[0-9]+ threads=$t " "$OUT/ours.$r.txt" | pss || true)
+      if [[ "$t" == 1 ]]; then pat="threads=1 dt=0.01 "; else pat="threads=2\((omp|mpi)\) dt=0.01 "; fi
+      l=$(grep -E "^lammps L=$L N=[0-9]+ $pat" "$OUT/lammps.$r.txt" | pss || true)
+      [[ -z "$o" || -z "$l" ]] && continue
+      awk -v r="$r" -v n="$(( 3 * L * L * L ))" -v t="$t" -v o="$o" -v l="$l" \
+        'BEGIN{printf "| %d | %d | %d | %.3e | %.3e | %.2f |\n", r, n, t, o, l, o/l}'
+    done
   done
 done
 rm -rf "$OUT"

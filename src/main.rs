@@ -438,7 +438,7 @@ fn plot(inputs: &[PathBuf], output: &Path, title: &str) -> Result<()> {
             let summary = read_json(&dir.join("summary.json"))?;
             let curve = Curve::from_summary(&label, &summary)
                 .with_context(|| format!("{}: not a stretching run", dir.display()))?;
-            curves.push(curve);
+            curves.push(Curve { label: curve.label.replace("membrane.", "").replace("stretching.", ""), ..curve });
         }
     }
     if curves.is_empty() {

@@ -114,3 +114,34 @@ fn run_writes_summary_json() {
     assert!(r["mills2004"]["rms_axial_um"].as_f64().unwrap() >= 0.0);
     assert!(dir.path().join("shapes.h5").exists() && dir.path().join("shapes.xmf").exists());
 }
+
+/// `analyze` reads a run's trajectory after the fact: one CSV row per frame, with the axial
+/// diameter equal to the one the run reported (SI metres against µm), and PNGs with --plot;
+/// a file that is not a trajectory gives a clear error and exit code 1.
+#[test]
+fn analyze_a_stretching_trajectory() {
+    let dir = tempfile::tempdir().unwrap();
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/stretching.toml");
+    let out = hemodpd(&["run", scenario, "--set", "stretching.forces_pn=[0.0, 150.0]", "--out", dir.path().to_str().unwrap(), "--quiet"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let h5 = dir.path().join("shapes.h5");
+    let out = hemodpd(&["analyze", h5.to_str().unwrap(), "--plot"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let adir = dir.path().join("shapes.analysis");
+    let csv = std::fs::read_to_string(adir.join("frames.csv")).unwrap();
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(lines.len(), 3, "header + 2 frames");
+    let col = lines[0].split(',').position(|c| c == "axial_diameter_m").unwrap();
+    let da_m: f64 = lines[2].split(',').nth(col).unwrap().parse().unwrap();
+    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap()).unwrap();
+    let da_um = summary["results"]["axial_diameter_um"][1].as_f64().unwrap();
+    assert!((da_m * 1e6 - da_um).abs() < 1e-9, "{da_m} m vs {da_um} µm");
+    assert!(adir.join("diameters.png").exists());
+
+    let bad = dir.path().join("bad.h5");
+    std::fs::write(&bad, b"not hdf5").unwrap();
+    let out = hemodpd(&["analyze", bad.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("bad.h5") && !err.contains("panicked"), "{err}");
+}

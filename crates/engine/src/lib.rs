@@ -53,7 +53,7 @@ pub use error::EngineError;
 pub use params::{ForceField, ForceScheme, PairParams, SimConfig, TypeSpec};
 pub use particles::{Particles, SimState, StateMut};
 pub use sim::{Extension, Simulation};
-pub use walls::{Reflection, WallConfig, WallShape, Walls};
+pub use walls::{ControlLaw, Reflection, WallConfig, WallShape, Walls};
 
 /// Convenience alias.
 pub type Result<T, E = EngineError> = std::result::Result<T, E>;

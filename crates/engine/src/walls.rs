@@ -7,15 +7,18 @@
 //!   the wall). Adding a shape is adding one variant and its arms in the `match`es below.
 //! * [`build`]: cuts a walled system out of an equilibrated periodic fluid: particles with
 //!   `d < 0` stay fluid (type 0), those with `0 ≤ d ≤ thickness` become frozen wall particles
-//!   (type 1) carrying the local wall velocity (used only by the dissipative force; frozen
-//!   particles never move), the rest are dropped.
+//!   (type 1) carrying the local wall velocity, the rest are dropped. The integrator never
+//!   moves frozen particles; [`Walls`] translates those of a moving wall rigidly with the wall
+//!   velocity every step (a static wall structure with a velocity only in the dissipative force
+//!   would pin the near-wall fluid through its conservative corrugation: 15% slip per wall in
+//!   Couette flow, see `docs/walls.md`).
 //! * [`Walls`]: the [`Extension`]. `after_position_update` reflects every fluid particle that
 //!   crossed the surface (bounce-back or specular), counts the reflections and returns an
 //!   [`EngineError::Extension`] naming the step and the particle if one is still inside after
 //!   reflection. `add_forces` adds the per-bin wall-normal force `F_k` (positive = away from the
 //!   wall) to fluid particles with `0 ≤ h < rc`. `end_of_step` samples the near-wall density and,
 //!   while adaptation is on, applies the update law every `update_every` steps:
-//!   `F_k ← F_k + gain·(ρ_k/ρ0 − 1)`.
+//!   `F_k ← F_k + α·(e_k − e_{k+1})` with `e_k = ρ_k/ρ0 − 1` ([`ControlLaw`]).
 //!
 //! A scene without walls uses `()` as its extension and none of this is compiled into its step.
 
@@ -307,6 +310,22 @@ pub enum Reflection {
     Specular,
 }
 
+/// The update law of the adaptive near-wall force, with e_k = ρ_k/ρ0 − 1 the relative density
+/// error of bin k (time-averaged over `update_every` steps) and α the gain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+pub enum ControlLaw {
+    /// F_k ← F_k + α (e_k − e_{k+1}), with e_{N_b} = 0 (the bulk beyond rc). Default. A force
+    /// in bin k moves particles from bin k to bin k + 1: in linear response it sets the density
+    /// *step* between the two bins (d ln ρ/dh = F/(∂p/∂ρ)), so this law inverts the response
+    /// and is stable for α below ≈ kBT/Δh (on the bin scale the fluid responds like an ideal gas,
+    /// δ ln ρ ≈ −Δh ΣF/kBT): full correction at α = kBT/Δh = 5 for 5 bins; default 3.
+    #[default]
+    Gradient,
+    /// F_k ← F_k + α e_k (the reconstruction in `reference/README.md` §5). Stable only for a
+    /// small α (≲ 5 for the standard fluid with 5 bins), hence slow; unstable at α = 20.
+    Local,
+}
+
 /// What [`build`] makes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct WallSetup {
@@ -387,11 +406,13 @@ pub fn build(config: &SimConfig, setup: &WallSetup, seed: u64) -> Result<(ForceF
 pub struct WallConfig {
     /// Reflection law (default bounce-back).
     pub reflection: Reflection,
-    /// Number of bins N_b of the near-wall layer 0 ≤ h < rc (default 10; width rc/N_b).
+    /// Number of bins N_b of the near-wall layer 0 ≤ h < rc (default 5; width rc/N_b).
     pub bins: usize,
     /// Cutoff rc: the thickness of the controlled layer.
     pub rc: Real,
-    /// Gain α of the update law, force units per unit relative density error (default 2).
+    /// Update law (default [`ControlLaw::Gradient`]).
+    pub law: ControlLaw,
+    /// Gain α of the update law, force units per unit relative density error (default 3).
     pub gain: Real,
     /// Steps M averaged per update (default 500).
     pub update_every: u64,
@@ -406,9 +427,10 @@ impl Default for WallConfig {
     fn default() -> Self {
         Self {
             reflection: Reflection::BounceBack,
-            bins: 10,
+            bins: 5,
             rc: 1.0,
-            gain: 2.0,
+            law: ControlLaw::Gradient,
+            gain: 3.0,
             update_every: 500,
             adapt: true,
             target_density: None,
@@ -583,6 +605,7 @@ pub struct Walls {
     impulse: Vec<DVec3>,
     history: Vec<AdaptRecord>,
     sampling: bool,
+    moving: bool,
 }
 
 impl Walls {
@@ -620,6 +643,14 @@ impl Walls {
             impulse: vec![DVec3::ZERO; shape.sides()],
             history: Vec::new(),
             sampling: true,
+            moving: match shape {
+                WallShape::Cylinder { .. } => false,
+                WallShape::Plates {
+                    lower_velocity,
+                    upper_velocity,
+                    ..
+                } => lower_velocity != DVec3::ZERO || upper_velocity != DVec3::ZERO,
+            },
             config,
         })
     }
@@ -752,6 +783,20 @@ impl Extension for Walls {
         let frozen: Vec<bool> = s.field.types().iter().map(|t| t.frozen).collect();
         let mass: Vec<Real> = s.field.types().iter().map(|t| t.mass).collect();
         let domain = *s.domain;
+        // Moving walls: translate the frozen wall particles with their wall's velocity (along
+        // the surface, so their signed distance does not change), keeping them in the box.
+        if self.moving {
+            let dt = s.dt;
+            s.pos
+                .par_iter_mut()
+                .zip(s.ptype.par_iter())
+                .with_min_len(4096)
+                .for_each(|(x, &t)| {
+                    if frozen[t as usize] {
+                        *x = domain.wrap(*x + shape.wall_velocity(*x) * dt);
+                    }
+                });
+        }
         // Reflect in parallel; collect (index, side, impulse, still-inside) of reflected
         // particles in index order (deterministic for any thread count).
         let events: Vec<(usize, usize, DVec3, bool)> = s
@@ -877,8 +922,13 @@ impl Extension for Walls {
                 .zip(&self.volumes)
                 .map(|(&c, &v)| c as Real / (sm * v * rho0))
                 .collect();
-            for (f, r) in self.forces.iter_mut().zip(&rel) {
-                *f += self.config.gain * (r - 1.0);
+            let e = |k: usize| if k < nb { rel[k] - 1.0 } else { 0.0 };
+            for k in 0..nb {
+                self.forces[k] += self.config.gain
+                    * match self.config.law {
+                        ControlLaw::Gradient => e(k) - e(k + 1),
+                        ControlLaw::Local => e(k),
+                    };
             }
             let max_deviation = rel.iter().map(|r| (r - 1.0).abs()).fold(0.0, Real::max);
             self.history.push(AdaptRecord {

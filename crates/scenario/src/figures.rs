@@ -93,7 +93,7 @@ pub fn stretching_chart(
         )
         .with_color(90, 90, 90),
     );
-    let opts = ChartOptions { width: 1000, height: 700, x_range: Some((-5.0, 205.0)), y_range: Some((0.0, 19.0)), legend: Some(LegendPosition::LowerLeft) };
+    let opts = ChartOptions { width: 1000, height: 700, x_range: Some((-5.0, 205.0)), y_range: Some((0.0, curves.iter().flat_map(|c| c.axial_um.iter()).fold(19.0f64, |m, &v| m.max(v + 1.0)))), legend: Some(LegendPosition::UpperLeft) };
     line_chart_with(
         path,
         title,

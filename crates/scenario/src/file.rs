@@ -38,6 +38,8 @@ pub enum ScenarioError {
 pub enum Scenario {
     Stretching(StretchingScenario),
     DpdFluid(FluidScenario),
+    PoiseuilleTube(TubeScenario),
+    Couette(CouetteScenario),
 }
 
 impl Scenario {
@@ -45,12 +47,16 @@ impl Scenario {
         match self {
             Scenario::Stretching(s) => s.seed,
             Scenario::DpdFluid(s) => s.seed,
+            Scenario::PoiseuilleTube(s) => s.seed,
+            Scenario::Couette(s) => s.seed,
         }
     }
     pub fn kind(&self) -> &'static str {
         match self {
             Scenario::Stretching(_) => "stretching",
             Scenario::DpdFluid(_) => "dpd-fluid",
+            Scenario::PoiseuilleTube(_) => "poiseuille-tube",
+            Scenario::Couette(_) => "couette",
         }
     }
     /// The resolved scenario (defaults filled in, overrides applied) as TOML text.
@@ -272,6 +278,181 @@ pub struct FluidRunSection {
     pub sample_every: u64,
 }
 
+fn w_bins() -> usize {
+    5
+}
+fn w_gain() -> f64 {
+    3.0
+}
+fn w_every() -> u64 {
+    500
+}
+fn w_iters() -> u64 {
+    10
+}
+fn w_equil() -> u64 {
+    300
+}
+fn w_profile_bins() -> usize {
+    16
+}
+fn w_reflection() -> String {
+    "bounce-back".into()
+}
+fn w_law() -> String {
+    "gradient".into()
+}
+fn w_initial() -> String {
+    "zero".into()
+}
+
+/// `[fluid]` of the wall scenarios: as the dpd-fluid `[fluid]` without the box (model units).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallFluidSection {
+    /// Number density, particles per rc³ (default 3).
+    #[serde(default = "f_rho")]
+    pub density: f64,
+    /// Conservative amplitude a (default 25), fluid–fluid and wall–fluid.
+    #[serde(default = "f_a")]
+    pub a: f64,
+    /// Dissipative coefficient γ (default 4.5).
+    #[serde(default = "f_gamma")]
+    pub gamma: f64,
+    /// Thermal energy kBT (default 1).
+    #[serde(default = "one")]
+    pub kbt: f64,
+    /// Cut-off radius (default 1).
+    #[serde(default = "f_cut")]
+    pub cutoff: f64,
+    /// Random-weight exponent s (default 1).
+    #[serde(default = "one")]
+    pub weight_exponent: f64,
+}
+
+/// `[walls]`: reflection and the adaptive near-wall force (docs/walls.md).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallsSection {
+    /// `"bounce-back"` (default, no slip) or `"specular"`.
+    #[serde(default = "w_reflection")]
+    pub reflection: String,
+    /// Adaptive control on (default true).
+    #[serde(default = "yes")]
+    pub adaptive: bool,
+    /// `"gradient"` (default: F_k += α(e_k − e_{k+1})) or `"local"` (F_k += α e_k).
+    #[serde(default = "w_law")]
+    pub law: String,
+    /// Bins of the near-wall layer 0 ≤ h < rc (default 5).
+    #[serde(default = "w_bins")]
+    pub bins: usize,
+    /// Gain α, force units (default 3).
+    #[serde(default = "w_gain")]
+    pub gain: f64,
+    /// Steps averaged per update M (default 500).
+    #[serde(default = "w_every")]
+    pub update_every: u64,
+    /// Number of updates (default 10); the flow is on during adaptation.
+    #[serde(default = "w_iters")]
+    pub adapt_iterations: u64,
+    /// Initial force profile: `"zero"` (default; the frozen wall particles supply the
+    /// repulsion) or `"half-space"` (πρa(rc − h)³(rc + 3h)/(12rc)).
+    #[serde(default = "w_initial")]
+    pub initial: String,
+    /// A force-profile CSV, relative to the scenario file: read if it exists and matches the
+    /// fluid and bins (then used instead of `initial`), written after adaptation.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_file: Option<PathBuf>,
+}
+
+/// `[run]` of the wall scenarios (model units).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallRunSection {
+    /// Time step (default 0.01).
+    #[serde(default = "f_dt")]
+    pub timestep: f64,
+    /// Groot–Warren λ (default 0.5).
+    #[serde(default = "f_lambda")]
+    pub lambda: f64,
+    /// Steps of the periodic fluid before the walls are cut out of it (default 300).
+    #[serde(default = "w_equil")]
+    pub equilibration_steps: u64,
+    /// Steps of flow development after adaptation, not sampled.
+    pub flow_steps: u64,
+    /// Sampled steps.
+    pub steps: u64,
+    /// Sample the profiles every this many steps.
+    pub sample_every: u64,
+    /// Bins of the velocity/density profile across the channel (default 16).
+    #[serde(default = "w_profile_bins")]
+    pub profile_bins: usize,
+    /// Also time the same number of fluid particles in a periodic box, for the wall overhead
+    /// (default true).
+    #[serde(default = "yes")]
+    pub measure_overhead: bool,
+}
+
+/// `[tube]`: the capillary, in rc. The paper's 10 µm × 45 µm tube is radius 5, length 22.5 at
+/// `length_scale_um_per_rc = 1`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TubeSection {
+    /// Radius of the fluid region, rc (≥ 2).
+    pub radius: f64,
+    /// Length along the (periodic) axis z, rc (≥ 3).
+    pub length: f64,
+    /// Body force per fluid particle along the axis (model units; drives the flow).
+    pub body_force: f64,
+    /// µm per rc, to report lengths in µm as well (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub length_scale_um_per_rc: Option<f64>,
+}
+
+/// `kind = "poiseuille-tube"`: body-force-driven flow in a tube with adaptive walls.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TubeScenario {
+    pub format_version: u32,
+    pub kind: String,
+    pub seed: u64,
+    pub fluid: WallFluidSection,
+    pub tube: TubeSection,
+    pub walls: WallsSection,
+    pub run: WallRunSection,
+    /// Directory of the scenario file (for `walls.force_file`); not part of the file.
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
+/// `[plates]`: two plates normal to z moving along x at −speed (lower) and +speed (upper).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlatesSection {
+    /// Distance between the surfaces, rc (≥ 3).
+    pub gap: f64,
+    /// Box edges along x and y, rc (each ≥ 3).
+    pub width: [f64; 2],
+    /// Plate speed U: the lower plate moves at −U, the upper at +U along x.
+    pub wall_speed: f64,
+}
+
+/// `kind = "couette"`: plane Couette flow between moving plates.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CouetteScenario {
+    pub format_version: u32,
+    pub kind: String,
+    pub seed: u64,
+    pub fluid: WallFluidSection,
+    pub plates: PlatesSection,
+    pub walls: WallsSection,
+    pub run: WallRunSection,
+    /// Directory of the scenario file; not part of the file.
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
 fn syntax(file: &str, e: impl std::fmt::Display) -> ScenarioError {
     ScenarioError::Syntax {
         file: file.to_string(),
@@ -287,6 +468,12 @@ pub fn load(path: &Path, sets: &[String]) -> Result<Scenario, ScenarioError> {
         source,
     })?;
     let mut s = load_str(&text, &file, sets)?;
+    let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    match &mut s {
+        Scenario::PoiseuilleTube(t) => t.base_dir = dir.clone(),
+        Scenario::Couette(t) => t.base_dir = dir.clone(),
+        _ => {}
+    }
     if let Scenario::Stretching(st) = &mut s {
         st.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         if let Some(m) = &st.membrane.mesh_file {
@@ -334,7 +521,7 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
             return Err(ScenarioError::Missing {
                 file: file.into(),
                 key: "kind".into(),
-                what: "one of \"stretching\", \"dpd-fluid\"".into(),
+                what: "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\"".into(),
             })
         }
     };
@@ -350,11 +537,21 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
             validate_fluid(&s, file)?;
             Ok(Scenario::DpdFluid(s))
         }
+        "poiseuille-tube" => {
+            let s: TubeScenario = value.try_into().map_err(|e| syntax(file, e))?;
+            validate_tube(&s, file)?;
+            Ok(Scenario::PoiseuilleTube(s))
+        }
+        "couette" => {
+            let s: CouetteScenario = value.try_into().map_err(|e| syntax(file, e))?;
+            validate_couette(&s, file)?;
+            Ok(Scenario::Couette(s))
+        }
         other => Err(ScenarioError::Value {
             file: file.into(),
             key: "kind".into(),
             value: format!("{other:?}"),
-            allowed: "one of \"stretching\", \"dpd-fluid\"".into(),
+            allowed: "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\"".into(),
         }),
     }
 }
@@ -605,6 +802,78 @@ fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
             r.sample_every,
             "a positive interval no longer than run.steps",
         ));
+    }
+    Ok(())
+}
+
+fn validate_wall_common(kind: &str, want: &str, f: &WallFluidSection, w: &WallsSection, r: &WallRunSection, c: &Check) -> Result<(), ScenarioError> {
+    if kind != want {
+        return Err(c.fail("kind", kind, &format!("{want:?}")));
+    }
+    c.range("fluid.density", f.density, 0.1, 30.0, "a number density between 0.1 and 30 per rc³ (standard: 3)")?;
+    c.range("fluid.a", f.a, 0.0, 1e4, "a conservative amplitude between 0 and 1e4")?;
+    c.range("fluid.gamma", f.gamma, 1e-3, 1e4, "a dissipative coefficient between 1e-3 and 1e4 (walls need dissipation)")?;
+    c.range("fluid.kbt", f.kbt, 1e-6, 1e3, "a thermal energy between 1e-6 and 1e3")?;
+    c.range("fluid.cutoff", f.cutoff, 0.1, 10.0, "a cut-off between 0.1 and 10")?;
+    c.range("fluid.weight_exponent", f.weight_exponent, 0.05, 4.0, "an exponent between 0.05 and 4")?;
+    if !["bounce-back", "specular"].contains(&w.reflection.as_str()) {
+        return Err(c.fail("walls.reflection", format!("{:?}", w.reflection), "\"bounce-back\" or \"specular\""));
+    }
+    if !["gradient", "local"].contains(&w.law.as_str()) {
+        return Err(c.fail("walls.law", format!("{:?}", w.law), "\"gradient\" or \"local\""));
+    }
+    if !["zero", "half-space"].contains(&w.initial.as_str()) {
+        return Err(c.fail("walls.initial", format!("{:?}", w.initial), "\"zero\" or \"half-space\""));
+    }
+    if w.bins == 0 || w.bins > 100 {
+        return Err(c.fail("walls.bins", w.bins, "an integer from 1 to 100"));
+    }
+    c.range("walls.gain", w.gain, 0.0, 100.0, "a gain between 0 and 100 (stable below ≈ kBT·bins/rc; default 3)")?;
+    if w.update_every == 0 {
+        return Err(c.fail("walls.update_every", 0, "a positive number of steps"));
+    }
+    c.range("run.timestep", r.timestep, 1e-6, 0.05, "a time step between 1e-6 and 0.05 (standard: 0.01)")?;
+    c.range("run.lambda", r.lambda, 0.0, 1.0, "a Groot–Warren λ between 0 and 1 (0.5 standard)")?;
+    if r.steps == 0 {
+        return Err(c.fail("run.steps", 0, "a positive number of steps"));
+    }
+    if r.sample_every == 0 || r.sample_every > r.steps {
+        return Err(c.fail("run.sample_every", r.sample_every, "a positive interval no longer than run.steps"));
+    }
+    if r.profile_bins < 2 || r.profile_bins > 1000 {
+        return Err(c.fail("run.profile_bins", r.profile_bins, "an integer from 2 to 1000"));
+    }
+    Ok(())
+}
+
+fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
+    let c = Check { file };
+    validate_wall_common(&s.kind, "poiseuille-tube", &s.fluid, &s.walls, &s.run, &c)?;
+    let rc = s.fluid.cutoff;
+    c.range("tube.radius", s.tube.radius, 2.0 * rc, 200.0, "a radius between 2 cut-offs and 200 rc")?;
+    c.range("tube.length", s.tube.length, 3.0 * rc, 1e4, "a length of at least 3 cut-offs")?;
+    c.range("tube.body_force", s.tube.body_force, -10.0, 10.0, "a body force between −10 and 10 (model units; 0.05–0.2 keeps the flow laminar and the shear rate moderate)")?;
+    if let Some(l) = s.tube.length_scale_um_per_rc {
+        c.range("tube.length_scale_um_per_rc", l, 1e-3, 1e3, "µm per rc between 1e-3 and 1e3")?;
+    }
+    let side = 2.0 * (s.tube.radius + rc) + 0.5;
+    if s.fluid.density * side * side * s.tube.length > 5e8 {
+        return Err(c.fail("tube.radius", s.tube.radius, "a tube holding at most 5e8 particles"));
+    }
+    Ok(())
+}
+
+fn validate_couette(s: &CouetteScenario, file: &str) -> Result<(), ScenarioError> {
+    let c = Check { file };
+    validate_wall_common(&s.kind, "couette", &s.fluid, &s.walls, &s.run, &c)?;
+    let rc = s.fluid.cutoff;
+    c.range("plates.gap", s.plates.gap, 3.0 * rc, 1e4, "a gap of at least 3 cut-offs")?;
+    for (k, &w) in s.plates.width.iter().enumerate() {
+        c.range(&format!("plates.width[{k}]"), w, 3.0 * rc, 1e4, "a box edge of at least 3 cut-offs")?;
+    }
+    c.range("plates.wall_speed", s.plates.wall_speed, -5.0, 5.0, "a plate speed between −5 and 5 (model units; |U|·Δt must stay well below the cell size)")?;
+    if s.fluid.density * s.plates.width[0] * s.plates.width[1] * (s.plates.gap + 2.0 * rc) > 5e8 {
+        return Err(c.fail("plates.gap", s.plates.gap, "a channel holding at most 5e8 particles"));
     }
     Ok(())
 }

@@ -6,6 +6,7 @@
 //! and what is allowed. [`run`] executes it and returns the results that go into
 //! `summary.json`.
 
+pub mod channel;
 pub mod figures;
 pub mod file;
 pub mod fluid;
@@ -102,5 +103,7 @@ pub fn run(scenario: &Scenario, ctx: &RunContext) -> Result<serde_json::Value, R
     match scenario {
         Scenario::Stretching(s) => stretching::run(s, ctx),
         Scenario::DpdFluid(s) => fluid::run(s, ctx),
+        Scenario::PoiseuilleTube(s) => channel::run_tube(s, ctx),
+        Scenario::Couette(s) => channel::run_couette(s, ctx),
     }
 }
