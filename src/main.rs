@@ -286,7 +286,7 @@ fn write_summary(
         "wall_time_s": wall,
         "results": results,
     });
-    hemodpd_io::summary::write_summary_json(&out_dir, &summary).context("writing summary.json")?;
+    hemodpd_io::summary::write_summary_json(out_dir, &summary).context("writing summary.json")?;
     if !quiet {
         eprintln!(
             "done in {wall:.2} s; summary: {}",

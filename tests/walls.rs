@@ -131,6 +131,8 @@ struct Tube {
     centre: f64,
     density_dev: f64,
     reflections: u64,
+    /// (r, v_z, parabola, ρ/ρ0) per radial bin.
+    profile: Vec<[f64; 4]>,
 }
 
 /// Tube Poiseuille run (L = 6).
@@ -184,7 +186,8 @@ fn poiseuille(radius: f64, g: f64, adaptive: bool, steps: u64, seed: u64) -> Tub
         sim.extension().relative_density().iter().map(|x| (x * 1000.0).round() / 1000.0).collect::<Vec<_>>(),
         sim.extension().reflections()
     );
-    Tube { eta, eta_se, slip, centre: a, density_dev: dev, reflections: sim.extension().reflections() }
+    let profile = (0..r.len()).map(|k| [r[k], v[k], a - b * r2[k], rho[k] / rho0]).collect();
+    Tube { eta, eta_se, slip, centre: a, density_dev: dev, reflections: sim.extension().reflections(), profile }
 }
 
 /// Longer tube runs for docs/walls.md: η of the parabola against the tube radius and the
@@ -200,7 +203,7 @@ fn tube_viscosity_vs_radius() {
 
 /// Couette run: returns (η from the wall stress / shear rate, its standard error, slip at the
 /// lower and upper wall (fractions of the wall speed difference), shear rate).
-fn couette(gap: f64, width: f64, u: f64, steps: u64, seed: u64) -> (f64, f64, f64, f64, f64) {
+fn couette(gap: f64, width: f64, u: f64, steps: u64, seed: u64) -> (f64, f64, f64, f64, f64, Vec<[f64; 3]>) {
     let mut sim = plates(gap, width, u, seed);
     let h = adapt(&mut sim, 8);
     println!("plates adaptation (gap {gap}, bins of 0.2 rc, M = 500, α = 3):");
@@ -256,7 +259,8 @@ fn couette(gap: f64, width: f64, u: f64, steps: u64, seed: u64) -> (f64, f64, f6
         max_dev(sim.extension()),
         sim.extension().reflections()
     );
-    (eta, eta_se, slip_lo, slip_hi, c1)
+    let prof = (0..nb).map(|k| [z[k], v[k], c0 + c1 * z[k]]).collect();
+    (eta, eta_se, slip_lo, slip_hi, c1, prof)
 }
 
 /// Reflection keeps every fluid particle out of the wall (bounce-back and specular), with many
@@ -301,6 +305,12 @@ fn no_fluid_particle_ever_inside_a_wall() {
 /// the near-wall layer within ±3% of ρ0. The converged profile is saved and reused.
 #[test]
 fn adaptive_control_flattens_near_wall_density() {
+    adaptive_a0();
+}
+
+/// The a_wf = 0 adaptation experiment; returns the near-wall profiles (label, (h, ρ/ρ0)).
+fn adaptive_a0() -> Vec<(String, Vec<(f64, f64)>)> {
+    let mut profiles = Vec::new();
     let (gap, width) = (6.0, 10.0);
     let make = |profile: Option<&WallForceProfile>, gain: f64| {
         let config = SimConfig::new(DVec3::new(width, width, gap + 2.0), 0.01, 11);
@@ -313,13 +323,15 @@ fn adaptive_control_flattens_near_wall_density() {
         }
         Simulation::with_extension(config, field, p, w).unwrap()
     };
-    let measure = |sim: &mut Simulation<Walls>, label: &str| {
+    let mut measure = |sim: &mut Simulation<Walls>, label: &str| {
         sim.run(500).unwrap();
         sim.extension_mut().reset_measurements();
         sim.run(4000).unwrap();
         let rel = sim.extension().relative_density();
         let d = max_dev(sim.extension());
         println!("{label}: max |ρ/ρ0−1| = {d:.4}, ρ/ρ0 = {:?}", rel.iter().map(|x| (x * 1000.0).round() / 1000.0).collect::<Vec<_>>());
+        let h = sim.extension().bin_centres();
+        profiles.push((label.to_string(), h.into_iter().zip(rel).collect::<Vec<_>>()));
         d
     };
     let mut none = make(None, 0.0);
@@ -344,6 +356,38 @@ fn adaptive_control_flattens_near_wall_density() {
     let d_again = measure(&mut again, "a_wf = 0, reused profile");
     // 3% target + ~0.5% for the statistical error of a 4000-step measurement (≈ 0.3–0.6% per bin)
     assert!(d_again < 0.035, "reused profile: {d_again}");
+    profiles
+}
+
+/// PNG figures for docs/walls.md (run with `--ignored`): writes docs/figures/walls_*.png.
+#[test]
+#[ignore]
+fn wall_figures() {
+    use hemodpd_io::plot::{line_chart, Series};
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("docs/figures");
+    let plain = poiseuille(4.0, 0.1, false, 6000, 1);
+    let adapted = poiseuille(4.0, 0.1, true, 6000, 1);
+    let mut series = Vec::new();
+    for (t, name) in [(&plain, "no adaptive force"), (&adapted, "adaptive force")] {
+        series.push(Series::points(format!("v_z, {name}"), t.profile.iter().map(|p| (p[0], p[1])).collect()));
+        series.push(Series::line(format!("parabola, {name} (η = {:.3}, slip {:.1}%)", t.eta, 100.0 * t.slip), t.profile.iter().map(|p| (p[0], p[2])).collect()));
+    }
+    line_chart(dir.join("walls_tube_velocity.png"), "Poiseuille flow in a tube, R = 4 rc, g = 0.1", "r (rc)", "axial velocity", &series).unwrap();
+    let mut series = Vec::new();
+    for (t, name) in [(&plain, "no adaptive force"), (&adapted, "adaptive force")] {
+        series.push(Series::line_with_points(name, t.profile.iter().map(|p| (p[0], p[3])).collect()));
+    }
+    line_chart(dir.join("walls_tube_density.png"), "Tube density across the radius (standard frozen wall)", "r (rc)", "ρ/ρ0", &series).unwrap();
+    let profiles = adaptive_a0();
+    let series: Vec<Series> = profiles.into_iter().map(|(l, p)| Series::line_with_points(l, p)).collect();
+    line_chart(dir.join("walls_near_wall_density.png"), "Near-wall density, wall without conservative force (a_wf = 0)", "h, distance from the wall (rc)", "ρ/ρ0", &series).unwrap();
+    let (eta, se, lo, hi, _, prof) = couette(8.0, 8.0, 2.0, 10000, 2);
+    let series = vec![
+        Series::points("v_x", prof.iter().map(|p| (p[0], p[1])).collect()),
+        Series::line(format!("line (η = {eta:.3} ± {se:.3}, slip {:.1}%, {:.1}%)", 100.0 * lo, 100.0 * hi), prof.iter().map(|p| (p[0], p[2])).collect()),
+        Series::line("walls ∓2", vec![(1.0, -2.0), (9.0, 2.0)]),
+    ];
+    line_chart(dir.join("walls_couette.png"), "Plane Couette flow, plates at z = 1 and 9 moving at ∓2", "z (rc)", "v_x", &series).unwrap();
 }
 
 /// Standard frozen-particle wall (a_wf = 25): the near-wall density is within ±3% with and
@@ -369,7 +413,7 @@ fn tube_poiseuille_profile_slip_and_density() {
 /// with the reverse-Poiseuille value within 3 standard errors of the stress.
 #[test]
 fn couette_linear_profile_no_slip_and_viscosity() {
-    let (eta, se, lo, hi, rate) = couette(8.0, 8.0, 2.0, 10000, 2);
+    let (eta, se, lo, hi, rate, _) = couette(8.0, 8.0, 2.0, 10000, 2);
     assert!(lo.abs() <= 0.03 && hi.abs() <= 0.03, "slip {lo} {hi}");
     assert!((rate / 0.5 - 1.0).abs() < 0.05, "shear rate {rate}");
     assert!((eta - ETA_REVERSE_POISEUILLE).abs() < 3.0 * se + 0.02, "η {eta} ± {se}");

@@ -14,6 +14,8 @@
 //! * [`observe`]: temperature, pressure tensor, momentum, binned profiles, block averages.
 //! * [`init`]: initial fluid configurations (random or jittered lattice, Maxwell–Boltzmann).
 //! * [`kernel`]: pair kernels (small `Copy` structs with one `force` method).
+//! * [`walls`]: walls from a signed distance (tube, plates), frozen wall particles, bounce-back
+//!   and the adaptive near-wall force, as the [`Walls`] extension (docs/walls.md).
 //!
 //! All quantities are in DPD model units (length rc, energy kBT, mass m of a solvent particle)
 //! unless a doc comment says otherwise.

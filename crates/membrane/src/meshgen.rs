@@ -407,7 +407,7 @@ pub fn relax(
         k_bend: 0.0,
         k_area: 0.0,
         k_volume: 0.0,
-        ..constants.clone()
+        ..*constants
     };
     let n = mesh.vertices.len();
     let mut topo = mesh.topology()?;
