@@ -249,12 +249,17 @@ fn run_one(
 fn resume_run(dir: &Path, threads: Option<usize>, quiet: bool) -> Result<()> {
     let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
     let ctx = RunContext::new(dir.to_path_buf(), threads, !quiet);
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().context("starting the thread pool")?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("starting the thread pool")?;
     if !quiet {
         eprintln!("hemodpd {}: resuming {}", env!("CARGO_PKG_VERSION"), dir.display());
     }
     let t0 = std::time::Instant::now();
-    let (scenario, results) = pool.install(|| hemodpd_scenario::resume(dir, &ctx)).map_err(anyhow::Error::new)?;
+    let (scenario, results) = pool
+        .install(|| hemodpd_scenario::resume(dir, &ctx))
+        .map_err(anyhow::Error::new)?;
     let wall = t0.elapsed().as_secs_f64();
     let ck = dir.join(hemodpd_scenario::fluid::CHECKPOINT_FILE);
     write_summary(&ck, &scenario, &[], threads, wall, results, dir, quiet)?;
@@ -438,7 +443,10 @@ fn plot(inputs: &[PathBuf], output: &Path, title: &str) -> Result<()> {
             let summary = read_json(&dir.join("summary.json"))?;
             let curve = Curve::from_summary(&label, &summary)
                 .with_context(|| format!("{}: not a stretching run", dir.display()))?;
-            curves.push(Curve { label: curve.label.replace("membrane.", "").replace("stretching.", ""), ..curve });
+            curves.push(Curve {
+                label: curve.label.replace("membrane.", "").replace("stretching.", ""),
+                ..curve
+            });
         }
     }
     if curves.is_empty() {
@@ -490,7 +498,10 @@ fn analyze(trajectory: &Path, out: Option<PathBuf>, plot: bool) -> Result<()> {
     use hemodpd_io::analysis;
     let a = analysis::analyze_file(trajectory, &analysis::AnalysisOptions::default())?;
     let out = out.unwrap_or_else(|| {
-        let stem = trajectory.file_stem().map(|s| s.to_string_lossy().to_string()).unwrap_or_default();
+        let stem = trajectory
+            .file_stem()
+            .map(|s| s.to_string_lossy().to_string())
+            .unwrap_or_default();
         trajectory.with_file_name(format!("{stem}.analysis"))
     });
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;

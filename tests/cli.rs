@@ -3,10 +3,7 @@
 use std::process::Command;
 
 fn hemodpd(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_hemodpd"))
-        .args(args)
-        .output()
-        .unwrap()
+    Command::new(env!("CARGO_BIN_EXE_hemodpd")).args(args).output().unwrap()
 }
 
 /// `params --json` carries the documented keys, with Table I's values for N = 500 and the
@@ -14,11 +11,7 @@ fn hemodpd(args: &[&str]) -> std::process::Output {
 #[test]
 fn params_json() {
     let out = hemodpd(&["params", "--n", "500", "--json"]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let j: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for key in [
         "n",
@@ -55,20 +48,8 @@ fn params_json() {
 fn mesh_command_writes_a_readable_mesh() {
     let dir = tempfile::tempdir().unwrap();
     let off = dir.path().join("cell.off");
-    let out = hemodpd(&[
-        "mesh",
-        "--n",
-        "300",
-        "--seed",
-        "4",
-        "-o",
-        off.to_str().unwrap(),
-    ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = hemodpd(&["mesh", "--n", "300", "--seed", "4", "-o", off.to_str().unwrap()]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let m = hemodpd_membrane::meshio::read_mesh(&off).unwrap();
     assert_eq!(m.vertices.len(), 300);
     let q: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
@@ -92,14 +73,9 @@ fn run_writes_summary_json() {
         "--threads",
         "1",
     ]);
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let j: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap())
-            .unwrap();
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap()).unwrap();
     assert_eq!(j["seed"], 1);
     assert_eq!(j["scenario"]["membrane"]["vertices"], 500);
     assert!(j["wall_time_s"].as_f64().unwrap() > 0.0);
@@ -122,7 +98,15 @@ fn run_writes_summary_json() {
 fn analyze_a_stretching_trajectory() {
     let dir = tempfile::tempdir().unwrap();
     let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/stretching.toml");
-    let out = hemodpd(&["run", scenario, "--set", "stretching.forces_pn=[0.0, 150.0]", "--out", dir.path().to_str().unwrap(), "--quiet"]);
+    let out = hemodpd(&[
+        "run",
+        scenario,
+        "--set",
+        "stretching.forces_pn=[0.0, 150.0]",
+        "--out",
+        dir.path().to_str().unwrap(),
+        "--quiet",
+    ]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let h5 = dir.path().join("shapes.h5");
     let out = hemodpd(&["analyze", h5.to_str().unwrap(), "--plot"]);
@@ -133,7 +117,8 @@ fn analyze_a_stretching_trajectory() {
     assert_eq!(lines.len(), 3, "header + 2 frames");
     let col = lines[0].split(',').position(|c| c == "axial_diameter_m").unwrap();
     let da_m: f64 = lines[2].split(',').nth(col).unwrap().parse().unwrap();
-    let summary: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap()).unwrap();
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap()).unwrap();
     let da_um = summary["results"]["axial_diameter_um"][1].as_f64().unwrap();
     assert!((da_m * 1e6 - da_um).abs() < 1e-9, "{da_m} m vs {da_um} µm");
     assert!(adir.join("diameters.png").exists());

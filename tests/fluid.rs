@@ -22,11 +22,18 @@ fn run(sets: &[&str]) -> serde_json::Value {
 /// in α = ±0.2 in p); with our standard error ≈ 0.03 a 2 % band (±0.47) covers both.
 #[test]
 fn standard_fluid_temperature_and_pressure() {
-    let r = run(&["fluid.box_size=[6.0, 6.0, 6.0]", "run.equilibration_steps=1000", "run.steps=4000"]);
+    let r = run(&[
+        "fluid.box_size=[6.0, 6.0, 6.0]",
+        "run.equilibration_steps=1000",
+        "run.steps=4000",
+    ]);
     assert_eq!(r["particles"], 648);
     let t = r["temperature"]["mean"].as_f64().unwrap();
     let p = r["pressure"]["mean"].as_f64().unwrap();
-    eprintln!("T = {t:.4} ± {:.4}, p = {p:.3} ± {:.3}", r["temperature"]["standard_error"], r["pressure"]["standard_error"]);
+    eprintln!(
+        "T = {t:.4} ± {:.4}, p = {p:.3} ± {:.3}",
+        r["temperature"]["standard_error"], r["pressure"]["standard_error"]
+    );
     assert!((t - 1.0).abs() < 0.01, "kBT = {t}");
     assert!((p / 23.7 - 1.0).abs() < 0.02, "p = {p}");
     // no body force: the total momentum stays at its initial zero to round-off

@@ -26,17 +26,26 @@ fn small(sets: &[&str]) -> Scenario {
 }
 
 fn in_pool<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> T {
-    rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(f)
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .unwrap()
+        .install(f)
 }
 
 fn final_arrays(dir: &Path) -> (Vec<glam::DVec3>, Vec<glam::DVec3>) {
     let ck = hemodpd_io::checkpoint::Checkpoint::load(dir.join("checkpoint.h5")).unwrap();
-    (ck.vec3s("positions", None).unwrap(), ck.vec3s("velocities", None).unwrap())
+    (
+        ck.vec3s("positions", None).unwrap(),
+        ck.vec3s("velocities", None).unwrap(),
+    )
 }
 
 fn frames(dir: &Path) -> (Vec<u64>, usize) {
     let r = TrajectoryReader::open(dir.join("trajectory.h5")).unwrap();
-    let steps: Vec<u64> = (0..r.fluid_frames().unwrap()).map(|i| r.fluid_frame(i).unwrap().step).collect();
+    let steps: Vec<u64> = (0..r.fluid_frames().unwrap())
+        .map(|i| r.fluid_frame(i).unwrap().step)
+        .collect();
     (steps, r.field_info("density").map(|i| i.frames).unwrap_or(0))
 }
 
@@ -58,12 +67,19 @@ fn resumed_run_is_bit_identical() {
     }
     // the interrupted file ends with the final frame at step 337
     assert_eq!(*frames(b.path()).0.last().unwrap(), 337);
-    let (_, resumed) = in_pool(2, || hemodpd_scenario::resume(b.path(), &RunContext::new(b.path(), 2, false))).unwrap();
+    let (_, resumed) = in_pool(2, || {
+        hemodpd_scenario::resume(b.path(), &RunContext::new(b.path(), 2, false))
+    })
+    .unwrap();
     assert_eq!(resumed["resumed_from_step"], 337);
 
     assert_eq!(full["final_state_fingerprint"], resumed["final_state_fingerprint"]);
     for k in ["temperature", "pressure"] {
-        assert_eq!(full[k]["mean"].as_f64().unwrap().to_bits(), resumed[k]["mean"].as_f64().unwrap().to_bits(), "{k}");
+        assert_eq!(
+            full[k]["mean"].as_f64().unwrap().to_bits(),
+            resumed[k]["mean"].as_f64().unwrap().to_bits(),
+            "{k}"
+        );
         assert_eq!(full[k]["samples"], resumed[k]["samples"]);
     }
     let (pa, va) = final_arrays(a.path());
@@ -82,7 +98,12 @@ fn resumed_run_is_bit_identical() {
 #[test]
 fn bad_checkpoints_are_clear_errors() {
     let d = tempfile::tempdir().unwrap();
-    let run = |dir: &Path| Command::new(env!("CARGO_BIN_EXE_hemodpd")).args(["run", "--resume", dir.to_str().unwrap(), "--quiet"]).output().unwrap();
+    let run = |dir: &Path| {
+        Command::new(env!("CARGO_BIN_EXE_hemodpd"))
+            .args(["run", "--resume", dir.to_str().unwrap(), "--quiet"])
+            .output()
+            .unwrap()
+    };
     let out = run(d.path());
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("no checkpoint.h5"));
@@ -90,7 +111,10 @@ fn bad_checkpoints_are_clear_errors() {
     let out = run(d.path());
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
-    assert!(err.contains("cannot resume") && err.contains("checkpoint.h5") && !err.contains("panicked"), "{err}");
+    assert!(
+        err.contains("cannot resume") && err.contains("checkpoint.h5") && !err.contains("panicked"),
+        "{err}"
+    );
 }
 
 /// Ctrl-C (SIGINT) on a running `hemodpd run`: exit code 130, a checkpoint and the trajectory
@@ -98,23 +122,49 @@ fn bad_checkpoints_are_clear_errors() {
 #[test]
 fn ctrl_c_checkpoints_and_resumes() {
     let sets = [
-        "--set", "fluid.box_size=[8.0, 8.0, 8.0]", "--set", "run.equilibration_steps=200", "--set", "run.steps=6000",
-        "--set", "output.trajectory_every_steps=500", "--quiet", "--threads", "1",
+        "--set",
+        "fluid.box_size=[8.0, 8.0, 8.0]",
+        "--set",
+        "run.equilibration_steps=200",
+        "--set",
+        "run.steps=6000",
+        "--set",
+        "output.trajectory_every_steps=500",
+        "--quiet",
+        "--threads",
+        "1",
     ];
     let bin = env!("CARGO_BIN_EXE_hemodpd");
     let scen = scenario_path();
     let a = tempfile::tempdir().unwrap();
-    let full = Command::new(bin).arg("run").arg(&scen).args(sets).arg("--out").arg(a.path()).output().unwrap();
+    let full = Command::new(bin)
+        .arg("run")
+        .arg(&scen)
+        .args(sets)
+        .arg("--out")
+        .arg(a.path())
+        .output()
+        .unwrap();
     assert!(full.status.success(), "{}", String::from_utf8_lossy(&full.stderr));
     let b = tempfile::tempdir().unwrap();
-    let mut child = Command::new(bin).arg("run").arg(&scen).args(sets).arg("--out").arg(b.path()).spawn().unwrap();
+    let mut child = Command::new(bin)
+        .arg("run")
+        .arg(&scen)
+        .args(sets)
+        .arg("--out")
+        .arg(b.path())
+        .spawn()
+        .unwrap();
     // wait for the run to be under way (its trajectory exists), then interrupt it
     let t0 = std::time::Instant::now();
     while !b.path().join("trajectory.h5").exists() && t0.elapsed().as_secs() < 60 {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
     std::thread::sleep(std::time::Duration::from_millis(300));
-    Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
     let status = child.wait().unwrap();
     if status.success() {
         eprintln!("the run finished before the interrupt arrived; nothing to resume");
@@ -122,11 +172,26 @@ fn ctrl_c_checkpoints_and_resumes() {
     }
     assert_eq!(status.code(), Some(130));
     assert!(b.path().join("checkpoint.h5").exists());
-    let resumed = Command::new(bin).args(["run", "--resume", b.path().to_str().unwrap(), "--quiet", "--threads", "2"]).output().unwrap();
+    let resumed = Command::new(bin)
+        .args([
+            "run",
+            "--resume",
+            b.path().to_str().unwrap(),
+            "--quiet",
+            "--threads",
+            "2",
+        ])
+        .output()
+        .unwrap();
     assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
-    let sa: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(a.path().join("summary.json")).unwrap()).unwrap();
-    let sb: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(b.path().join("summary.json")).unwrap()).unwrap();
-    assert_eq!(sa["results"]["final_state_fingerprint"], sb["results"]["final_state_fingerprint"]);
+    let sa: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(a.path().join("summary.json")).unwrap()).unwrap();
+    let sb: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(b.path().join("summary.json")).unwrap()).unwrap();
+    assert_eq!(
+        sa["results"]["final_state_fingerprint"],
+        sb["results"]["final_state_fingerprint"]
+    );
     assert!(sb["results"]["resumed_from_step"].as_u64().unwrap() > 0);
     assert_eq!(frames(a.path()).0, frames(b.path()).0);
 }

@@ -15,8 +15,7 @@ fn shipped_scenarios_parse() {
     for entry in std::fs::read_dir(root().join("scenarios")).unwrap() {
         let path = entry.unwrap().path();
         if path.extension().is_some_and(|e| e == "toml") {
-            hemodpd_scenario::load(&path, &[])
-                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            hemodpd_scenario::load(&path, &[]).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
             n += 1;
         }
     }
@@ -27,15 +26,9 @@ fn shipped_scenarios_parse() {
 fn bad_scenarios_give_clear_errors() {
     let dir = root().join("tests/bad_scenarios");
     let mut checked = 0;
-    let mut entries: Vec<PathBuf> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().path())
-        .collect();
+    let mut entries: Vec<PathBuf> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().path()).collect();
     entries.sort();
-    for path in entries
-        .iter()
-        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
-    {
+    for path in entries.iter().filter(|p| p.extension().is_some_and(|e| e == "toml")) {
         let expected = std::fs::read_to_string(path.with_extension("expected"))
             .unwrap_or_else(|_| panic!("{} has no .expected file", path.display()));
         let err = match hemodpd_scenario::load(path, &[]) {
@@ -43,15 +36,9 @@ fn bad_scenarios_give_clear_errors() {
             Err(e) => e.to_string(),
         };
         let name = path.file_name().unwrap().to_string_lossy();
-        assert!(
-            err.contains(&*name),
-            "{name}: message does not name the file: {err}"
-        );
+        assert!(err.contains(&*name), "{name}: message does not name the file: {err}");
         for line in expected.lines().filter(|l| !l.trim().is_empty()) {
-            assert!(
-                err.contains(line.trim()),
-                "{name}: message lacks {line:?}:\n{err}"
-            );
+            assert!(err.contains(line.trim()), "{name}: message lacks {line:?}:\n{err}");
         }
         checked += 1;
     }
@@ -77,13 +64,7 @@ fn cli_rejects_a_bad_file_before_any_work() {
     let out = std::env::temp_dir().join(format!("hemodpd-badrun-{}", std::process::id()));
     let bad = root().join("tests/bad_scenarios/negative_vertices.toml");
     let res = Command::new(env!("CARGO_BIN_EXE_hemodpd"))
-        .args([
-            "run",
-            bad.to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-            "--quiet",
-        ])
+        .args(["run", bad.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet"])
         .output()
         .unwrap();
     assert!(!res.status.success());

@@ -28,10 +28,7 @@ fn n500_matches_mills_2004() {
     let points = stretching::solve(&s, &prepared, |_| {}).unwrap();
     let mills = mills_2004();
     for p in &points {
-        let m = mills
-            .iter()
-            .find(|m| (m.force_pn - p.force).abs() < 1e-9)
-            .unwrap();
+        let m = mills.iter().find(|m| (m.force_pn - p.force).abs() < 1e-9).unwrap();
         eprintln!(
             "F = {:7.3} pN: D_A = {:.3} (Mills {:.2} [{:.2}, {:.2}])  D_T = {:.3} (Mills {:.2} [{:.2}, {:.2}])",
             p.force, p.axial_diameter, m.da_um, m.da_lo, m.da_hi, p.transverse_diameter, m.dt_um, m.dt_lo, m.dt_hi
@@ -57,10 +54,7 @@ fn n500_matches_mills_2004() {
     );
     // the cell stretches monotonically
     for w in points.windows(2) {
-        assert!(
-            w[1].axial_diameter > w[0].axial_diameter
-                && w[1].transverse_diameter < w[0].transverse_diameter
-        );
+        assert!(w[1].axial_diameter > w[0].axial_diameter && w[1].transverse_diameter < w[0].transverse_diameter);
     }
 }
 
@@ -125,7 +119,9 @@ fn user_mesh_reproduces_the_golden_energies() {
         "membrane.volume_constraint_n_per_m2=1e3",
     ]);
     let prepared = stretching::prepare(&s).unwrap();
-    let golden: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(golden_dir.join("golden_energies_N500_uniform.json")).unwrap()).unwrap();
+    let golden: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(golden_dir.join("golden_energies_N500_uniform.json")).unwrap())
+            .unwrap();
     let perturbed: Vec<glam::DVec3> = std::fs::read_to_string(golden_dir.join("mesh_N500.perturbed.vertices.csv"))
         .unwrap()
         .lines()
@@ -138,7 +134,13 @@ fn user_mesh_reproduces_the_golden_energies() {
     for (key, x) in [("at_mesh", &prepared.mesh.vertices), ("perturbed", &perturbed)] {
         let e = prepared.model.energy(x).unwrap();
         let g = &golden[key];
-        for (name, ours) in [("wlc", e.wlc), ("C_over_A", e.c_over_a), ("bending", e.bending), ("area", e.area), ("volume", e.volume)] {
+        for (name, ours) in [
+            ("wlc", e.wlc),
+            ("C_over_A", e.c_over_a),
+            ("bending", e.bending),
+            ("area", e.area),
+            ("volume", e.volume),
+        ] {
             let want = g[name].as_f64().unwrap();
             let tol = 1e-9 * want.abs().max(1e-6);
             assert!((ours - want).abs() <= tol, "{key} {name}: {ours} vs golden {want}");

@@ -3,8 +3,8 @@
 //! Each test prints its numbers (`cargo test --release --test walls -- --nocapture`).
 
 use glam::DVec3;
-use hemodpd_engine::walls::{self, AdaptRecord, Reflection, WallConfig, WallSetup, WallShape, Walls};
 use hemodpd_engine::walls::WallForceProfile;
+use hemodpd_engine::walls::{self, AdaptRecord, Reflection, WallConfig, WallSetup, WallShape, Walls};
 use hemodpd_engine::{EngineError, Extension, PairParams, PeriodicBox, SimConfig, Simulation, StateMut};
 
 /// Reverse-Poiseuille viscosity of the standard fluid, docs/engine.md (0.846 ± 0.002).
@@ -13,9 +13,19 @@ const ETA_REVERSE_POISEUILLE: f64 = 0.846;
 fn tube(radius: f64, length: f64, seed: u64, reflection: Reflection) -> Simulation<Walls> {
     let side = 2.0 * (radius + 1.0) + 0.5;
     let config = SimConfig::new(DVec3::new(side, side, length), 0.01, seed);
-    let shape = WallShape::Cylinder { axis: 2, centre: [0.5 * side; 2], radius };
+    let shape = WallShape::Cylinder {
+        axis: 2,
+        centre: [0.5 * side; 2],
+        radius,
+    };
     let (field, p) = walls::build(&config, &WallSetup::standard(shape), seed).unwrap();
-    let cfg = WallConfig { reflection, bins: 5, gain: 3.0, update_every: 500, ..WallConfig::default() };
+    let cfg = WallConfig {
+        reflection,
+        bins: 5,
+        gain: 3.0,
+        update_every: 500,
+        ..WallConfig::default()
+    };
     Simulation::with_extension(config, field, p, Walls::new(shape, cfg).unwrap()).unwrap()
 }
 
@@ -30,7 +40,12 @@ fn plates(gap: f64, width: f64, u: f64, seed: u64) -> Simulation<Walls> {
         upper_velocity: DVec3::new(u, 0.0, 0.0),
     };
     let (field, p) = walls::build(&config, &WallSetup::standard(shape), seed).unwrap();
-    let cfg = WallConfig { bins: 5, gain: 3.0, update_every: 500, ..WallConfig::default() };
+    let cfg = WallConfig {
+        bins: 5,
+        gain: 3.0,
+        update_every: 500,
+        ..WallConfig::default()
+    };
     Simulation::with_extension(config, field, p, Walls::new(shape, cfg).unwrap()).unwrap()
 }
 
@@ -38,7 +53,14 @@ fn print_history(h: &[AdaptRecord]) {
     for r in h {
         let rel: Vec<String> = r.relative_density.iter().map(|x| format!("{x:.3}")).collect();
         let f: Vec<String> = r.forces.iter().map(|x| format!("{x:.2}")).collect();
-        println!("  iter {:2} step {:6} max|ρ/ρ0−1| {:.4}  ρ/ρ0 [{}]  F [{}]", r.iteration, r.step, r.max_deviation, rel.join(" "), f.join(" "));
+        println!(
+            "  iter {:2} step {:6} max|ρ/ρ0−1| {:.4}  ρ/ρ0 [{}]  F [{}]",
+            r.iteration,
+            r.step,
+            r.max_deviation,
+            rel.join(" "),
+            f.join(" ")
+        );
     }
 }
 
@@ -58,7 +80,13 @@ struct Radial {
 
 impl Radial {
     fn new(radius: f64, nbins: usize, length: f64) -> Self {
-        Self { width: radius / nbins as f64, count: vec![0.0; nbins], vz: vec![0.0; nbins], samples: 0, length }
+        Self {
+            width: radius / nbins as f64,
+            count: vec![0.0; nbins],
+            vz: vec![0.0; nbins],
+            samples: 0,
+            length,
+        }
     }
     fn sample(&mut self, sim: &Simulation<Walls>) {
         let shape = *sim.extension().shape();
@@ -145,7 +173,9 @@ fn poiseuille(radius: f64, g: f64, adaptive: bool, steps: u64, seed: u64) -> Tub
         println!("tube adaptation (R = {radius}, bins of 0.2 rc, M = 500, α = 3):");
         print_history(&h);
     } else {
+        // same history length as the adaptive run, so both flows are equally developed
         sim.extension_mut().set_adapt(false);
+        sim.run(12 * 500).unwrap();
     }
     sim.run(1500).unwrap(); // flow development (viscous time R²ρ/η ≈ 57 ≈ 5700 steps; overlap with adaptation)
     sim.extension_mut().reset_measurements();
@@ -175,10 +205,19 @@ fn poiseuille(radius: f64, g: f64, adaptive: bool, steps: u64, seed: u64) -> Tub
     let m = etas.iter().sum::<f64>() / nblocks as f64;
     let eta_se = (etas.iter().map(|e| (e - m).powi(2)).sum::<f64>() / ((nblocks - 1) * nblocks) as f64).sqrt();
     let slip = (a - b * radius * radius) / a;
-    println!("tube R = {radius}, g = {g}, {} samples, ρ0 = {rho0:.4}, adaptive = {adaptive}", prof.samples);
+    println!(
+        "tube R = {radius}, g = {g}, {} samples, ρ0 = {rho0:.4}, adaptive = {adaptive}",
+        prof.samples
+    );
     let rho = prof.density();
     for k in 0..r.len() {
-        println!("  r {:.3}  v_z {:.4}  fit {:.4}  ρ/ρ0 {:.4}", r[k], v[k], a - b * r2[k], rho[k] / rho0);
+        println!(
+            "  r {:.3}  v_z {:.4}  fit {:.4}  ρ/ρ0 {:.4}",
+            r[k],
+            v[k],
+            a - b * r2[k],
+            rho[k] / rho0
+        );
     }
     let dev = max_dev(sim.extension());
     println!(
@@ -186,8 +225,18 @@ fn poiseuille(radius: f64, g: f64, adaptive: bool, steps: u64, seed: u64) -> Tub
         sim.extension().relative_density().iter().map(|x| (x * 1000.0).round() / 1000.0).collect::<Vec<_>>(),
         sim.extension().reflections()
     );
-    let profile = (0..r.len()).map(|k| [r[k], v[k], a - b * r2[k], rho[k] / rho0]).collect();
-    Tube { eta, eta_se, slip, centre: a, density_dev: dev, reflections: sim.extension().reflections(), profile }
+    let profile = (0..r.len())
+        .map(|k| [r[k], v[k], a - b * r2[k], rho[k] / rho0])
+        .collect();
+    Tube {
+        eta,
+        eta_se,
+        slip,
+        centre: a,
+        density_dev: dev,
+        reflections: sim.extension().reflections(),
+        profile,
+    }
 }
 
 /// Longer tube runs for docs/walls.md: η of the parabola against the tube radius and the
@@ -252,7 +301,13 @@ fn couette(gap: f64, width: f64, u: f64, steps: u64, seed: u64) -> (f64, f64, f6
         2.0 * u / gap
     );
     for k in 0..nb {
-        println!("  z {:.3}  v_x {:.4}  fit {:.4}  ρ {:.3}", z[k], v[k], c0 + c1 * z[k], cnt[k] / (steps as f64 * area * gap / nb as f64));
+        println!(
+            "  z {:.3}  v_x {:.4}  fit {:.4}  ρ {:.3}",
+            z[k],
+            v[k],
+            c0 + c1 * z[k],
+            cnt[k] / (steps as f64 * area * gap / nb as f64)
+        );
     }
     println!(
         "  slip lower {slip_lo:.4}, upper {slip_hi:.4}, near-wall max dev {:.4}, reflections {}",
@@ -275,7 +330,10 @@ fn no_fluid_particle_ever_inside_a_wall() {
             sim.run(100).unwrap();
             let shape = *sim.extension().shape();
             let p = sim.particles();
-            let worst = (0..p.len()).filter(|&i| p.ptype[i] == walls::FLUID_TYPE).map(|i| shape.signed_distance(p.pos[i])).fold(f64::MIN, f64::max);
+            let worst = (0..p.len())
+                .filter(|&i| p.ptype[i] == walls::FLUID_TYPE)
+                .map(|i| shape.signed_distance(p.pos[i]))
+                .fold(f64::MIN, f64::max);
             assert!(worst <= 0.0, "{refl:?}: fluid particle at signed distance {worst}");
         }
         // ~1.8 hits per step expected from kinetic theory (ρ√(kT/2πm) × area 151)
@@ -286,13 +344,30 @@ fn no_fluid_particle_ever_inside_a_wall() {
     // A particle 3.5 deep in a wall whose fluid is only 2.5 wide: its mirror point is in the
     // wall on the other side → error.
     let domain = PeriodicBox::new(DVec3::new(4.0, 4.0, 10.0)).unwrap();
-    let shape = WallShape::Plates { axis: 2, lower: 0.5, upper: 3.0, period: 10.0, lower_velocity: DVec3::ZERO, upper_velocity: DVec3::ZERO };
+    let shape = WallShape::Plates {
+        axis: 2,
+        lower: 0.5,
+        upper: 3.0,
+        period: 10.0,
+        lower_velocity: DVec3::ZERO,
+        upper_velocity: DVec3::ZERO,
+    };
     let field = walls::wall_field(PairParams::groot_warren()).unwrap();
     let mut w = Walls::new(shape, WallConfig::default()).unwrap();
     let mut pos = vec![DVec3::new(1.0, 1.0, 2.0), DVec3::new(1.0, 1.0, 6.5)];
     let mut vel = vec![DVec3::ZERO, DVec3::Z];
     let mut force = vec![DVec3::ZERO; 2];
-    let mut s = StateMut { pos: &mut pos, vel: &mut vel, force: &mut force, ptype: &[0, 0], id: &[10, 11], domain: &domain, field: &field, dt: 0.01, step: 42 };
+    let mut s = StateMut {
+        pos: &mut pos,
+        vel: &mut vel,
+        force: &mut force,
+        ptype: &[0, 0],
+        id: &[10, 11],
+        domain: &domain,
+        field: &field,
+        dt: 0.01,
+        step: 42,
+    };
     let e = w.after_position_update(&mut s).unwrap_err();
     println!("{e}");
     assert!(matches!(e, EngineError::Extension { step: 42, .. }));
@@ -314,10 +389,36 @@ fn adaptive_a0() -> Vec<(String, Vec<(f64, f64)>)> {
     let (gap, width) = (6.0, 10.0);
     let make = |profile: Option<&WallForceProfile>, gain: f64| {
         let config = SimConfig::new(DVec3::new(width, width, gap + 2.0), 0.01, 11);
-        let shape = WallShape::Plates { axis: 2, lower: 1.0, upper: 1.0 + gap, period: gap + 2.0, lower_velocity: DVec3::ZERO, upper_velocity: DVec3::ZERO };
+        let shape = WallShape::Plates {
+            axis: 2,
+            lower: 1.0,
+            upper: 1.0 + gap,
+            period: gap + 2.0,
+            lower_velocity: DVec3::ZERO,
+            upper_velocity: DVec3::ZERO,
+        };
         let (mut field, p) = walls::build(&config, &WallSetup::standard(shape), 11).unwrap();
-        field.set_pair(0, 1, PairParams { a: 0.0, ..PairParams::groot_warren() }).unwrap();
-        let mut w = Walls::new(shape, WallConfig { bins: 5, gain, update_every: 500, adapt: false, ..WallConfig::default() }).unwrap();
+        field
+            .set_pair(
+                0,
+                1,
+                PairParams {
+                    a: 0.0,
+                    ..PairParams::groot_warren()
+                },
+            )
+            .unwrap();
+        let mut w = Walls::new(
+            shape,
+            WallConfig {
+                bins: 5,
+                gain,
+                update_every: 500,
+                adapt: false,
+                ..WallConfig::default()
+            },
+        )
+        .unwrap();
         if let Some(p) = profile {
             w = w.with_profile(p).unwrap();
         }
@@ -329,7 +430,10 @@ fn adaptive_a0() -> Vec<(String, Vec<(f64, f64)>)> {
         sim.run(4000).unwrap();
         let rel = sim.extension().relative_density();
         let d = max_dev(sim.extension());
-        println!("{label}: max |ρ/ρ0−1| = {d:.4}, ρ/ρ0 = {:?}", rel.iter().map(|x| (x * 1000.0).round() / 1000.0).collect::<Vec<_>>());
+        println!(
+            "{label}: max |ρ/ρ0−1| = {d:.4}, ρ/ρ0 = {:?}",
+            rel.iter().map(|x| (x * 1000.0).round() / 1000.0).collect::<Vec<_>>()
+        );
         let h = sim.extension().bin_centres();
         profiles.push((label.to_string(), h.into_iter().zip(rel).collect::<Vec<_>>()));
         d
@@ -344,7 +448,10 @@ fn adaptive_a0() -> Vec<(String, Vec<(f64, f64)>)> {
     println!("adaptation from the half-space force (gradient law, α = 3, M = 500):");
     print_history(&hist);
     let d_ad = measure(&mut ad, "a_wf = 0, adapted");
-    assert!(d_none > 0.10, "without a wall force the near-wall density should be far off: {d_none}");
+    assert!(
+        d_none > 0.10,
+        "without a wall force the near-wall density should be far off: {d_none}"
+    );
     assert!(d_ad < 0.03, "after adaptation: {d_ad}");
     assert!(d_ad < d_half && d_ad < d_none / 3.0);
     // save and reuse: a new run started from the saved profile is flat at once
@@ -369,25 +476,75 @@ fn wall_figures() {
     let adapted = poiseuille(4.0, 0.1, true, 6000, 1);
     let mut series = Vec::new();
     for (t, name) in [(&plain, "no adaptive force"), (&adapted, "adaptive force")] {
-        series.push(Series::points(format!("v_z, {name}"), t.profile.iter().map(|p| (p[0], p[1])).collect()));
-        series.push(Series::line(format!("parabola, {name} (η = {:.3}, slip {:.1}%)", t.eta, 100.0 * t.slip), t.profile.iter().map(|p| (p[0], p[2])).collect()));
+        series.push(Series::points(
+            format!("v_z, {name}"),
+            t.profile.iter().map(|p| (p[0], p[1])).collect(),
+        ));
+        series.push(Series::line(
+            format!("parabola, {name} (η = {:.3}, slip {:.1}%)", t.eta, 100.0 * t.slip),
+            t.profile.iter().map(|p| (p[0], p[2])).collect(),
+        ));
     }
-    line_chart(dir.join("walls_tube_velocity.png"), "Poiseuille flow in a tube, R = 4 rc, g = 0.1", "r (rc)", "axial velocity", &series).unwrap();
+    line_chart(
+        dir.join("walls_tube_velocity.png"),
+        "Poiseuille flow in a tube, R = 4 rc, g = 0.1",
+        "r (rc)",
+        "axial velocity",
+        &series,
+    )
+    .unwrap();
     let mut series = Vec::new();
     for (t, name) in [(&plain, "no adaptive force"), (&adapted, "adaptive force")] {
-        series.push(Series::line_with_points(name, t.profile.iter().map(|p| (p[0], p[3])).collect()));
+        series.push(Series::line_with_points(
+            name,
+            t.profile.iter().map(|p| (p[0], p[3])).collect(),
+        ));
     }
-    line_chart(dir.join("walls_tube_density.png"), "Tube density across the radius (standard frozen wall)", "r (rc)", "ρ/ρ0", &series).unwrap();
+    line_chart(
+        dir.join("walls_tube_density.png"),
+        "Tube density across the radius (standard frozen wall)",
+        "r (rc)",
+        "ρ/ρ0",
+        &series,
+    )
+    .unwrap();
     let profiles = adaptive_a0();
-    let series: Vec<Series> = profiles.into_iter().map(|(l, p)| Series::line_with_points(l, p)).collect();
-    line_chart(dir.join("walls_near_wall_density.png"), "Near-wall density, wall without conservative force (a_wf = 0)", "h, distance from the wall (rc)", "ρ/ρ0", &series).unwrap();
+    let series: Vec<Series> = profiles
+        .into_iter()
+        .map(|(l, p)| Series::line_with_points(l, p))
+        .collect();
+    line_chart(
+        dir.join("walls_near_wall_density.png"),
+        "Near-wall density, wall without conservative force (a_wf = 0)",
+        "h, distance from the wall (rc)",
+        "ρ/ρ0",
+        &series,
+    )
+    .unwrap();
     let (eta, se, lo, hi, _, prof) = couette(8.0, 8.0, 2.0, 10000, 2);
     let series = vec![
         Series::points("v_x", prof.iter().map(|p| (p[0], p[1])).collect()),
-        Series::line(format!("line (η = {eta:.3} ± {se:.3}, slip {:.1}%, {:.1}%)", 100.0 * lo, 100.0 * hi), prof.iter().map(|p| (p[0], p[2])).collect()),
-        Series::line("walls ∓2", vec![(1.0, -2.0), (9.0, 2.0)]),
+        Series::line(
+            format!(
+                "line (η = {eta:.3} ± {se:.3}, slip {:.1}%, {:.1}%)",
+                100.0 * lo,
+                100.0 * hi
+            ),
+            prof.iter().map(|p| (p[0], p[2])).collect(),
+        ),
+        Series::line(
+            "no slip (line through the wall velocities)",
+            vec![(1.0, -2.0), (9.0, 2.0)],
+        ),
     ];
-    line_chart(dir.join("walls_couette.png"), "Plane Couette flow, plates at z = 1 and 9 moving at ∓2", "z (rc)", "v_x", &series).unwrap();
+    line_chart(
+        dir.join("walls_couette.png"),
+        "Plane Couette flow, plates at z = 1 and 9 moving at ∓2",
+        "z (rc)",
+        "v_x",
+        &series,
+    )
+    .unwrap();
 }
 
 /// Standard frozen-particle wall (a_wf = 25): the near-wall density is within ±3% with and
@@ -424,19 +581,34 @@ fn couette_linear_profile_no_slip_and_viscosity() {
 #[test]
 fn walls_are_deterministic_across_thread_counts() {
     let run = |threads: usize| {
-        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
-            let mut sim = plates(4.0, 5.0, 1.0, 9);
-            sim.set_body_force(0, DVec3::new(0.0, 0.05, 0.0)).unwrap();
-            let mut cfg = sim.extension().config().clone();
-            cfg.update_every = 50;
-            let shape = *sim.extension().shape();
-            let (state, _) = sim.into_parts();
-            let mut sim = Simulation::with_extension(state.config, state.field, state.particles, Walls::new(shape, cfg).unwrap()).unwrap();
-            sim.run(300).unwrap();
-            let p = sim.particles();
-            let bits: Vec<u64> = p.pos.iter().chain(&p.vel).flat_map(|v| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()]).collect();
-            (bits, sim.extension().forces().to_vec(), sim.extension().reflections())
-        })
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| {
+                let mut sim = plates(4.0, 5.0, 1.0, 9);
+                sim.set_body_force(0, DVec3::new(0.0, 0.05, 0.0)).unwrap();
+                let mut cfg = sim.extension().config().clone();
+                cfg.update_every = 50;
+                let shape = *sim.extension().shape();
+                let (state, _) = sim.into_parts();
+                let mut sim = Simulation::with_extension(
+                    state.config,
+                    state.field,
+                    state.particles,
+                    Walls::new(shape, cfg).unwrap(),
+                )
+                .unwrap();
+                sim.run(300).unwrap();
+                let p = sim.particles();
+                let bits: Vec<u64> = p
+                    .pos
+                    .iter()
+                    .chain(&p.vel)
+                    .flat_map(|v| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits()])
+                    .collect();
+                (bits, sim.extension().forces().to_vec(), sim.extension().reflections())
+            })
     };
     let (a, b) = (run(1), run(2));
     assert!(a.2 > 0);
@@ -489,8 +661,15 @@ fn wall_scenarios_run() {
     let dir = tempfile::tempdir().unwrap();
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
     let tube_sets: Vec<String> = [
-        "tube.radius=3", "tube.length=4", "tube.body_force=0.1", "walls.adapt_iterations=2", "walls.update_every=100",
-        "walls.force_file=\"__FILE__\"", "run.flow_steps=100", "run.steps=300", "run.profile_bins=6",
+        "tube.radius=3",
+        "tube.length=4",
+        "tube.body_force=0.1",
+        "walls.adapt_iterations=2",
+        "walls.update_every=100",
+        "walls.force_file=\"__FILE__\"",
+        "run.flow_steps=100",
+        "run.steps=300",
+        "run.profile_bins=6",
     ]
     .iter()
     .map(|s| s.replace("__FILE__", &dir.path().join("force.csv").display().to_string()))
@@ -504,15 +683,35 @@ fn wall_scenarios_run() {
     assert!(r["overhead"]["ratio"].as_f64().unwrap() > 0.0);
     assert_eq!(r["adaptation"]["iterations"].as_array().unwrap().len(), 2);
     assert!(dir.path().join("force.csv").exists() && dir.path().join("tube/velocity_profile.csv").exists());
-    let again = hemodpd_scenario::run(&s, &hemodpd_scenario::RunContext::new(dir.path().join("tube2"), 1, false)).unwrap();
-    assert!(again["wall_force_source"].as_str().unwrap().starts_with("file"), "{}", again["wall_force_source"]);
+    let again = hemodpd_scenario::run(
+        &s,
+        &hemodpd_scenario::RunContext::new(dir.path().join("tube2"), 1, false),
+    )
+    .unwrap();
+    assert!(
+        again["wall_force_source"].as_str().unwrap().starts_with("file"),
+        "{}",
+        again["wall_force_source"]
+    );
 
-    let sets: Vec<String> = ["plates.gap=4", "plates.width=[4, 4]", "walls.adapt_iterations=1", "walls.update_every=100", "run.flow_steps=100", "run.steps=300", "run.measure_overhead=false"]
-        .iter()
-        .map(|s| s.to_string())
-        .collect();
+    let sets: Vec<String> = [
+        "plates.gap=4",
+        "plates.width=[4, 4]",
+        "walls.adapt_iterations=1",
+        "walls.update_every=100",
+        "run.flow_steps=100",
+        "run.steps=300",
+        "run.measure_overhead=false",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
     let s = hemodpd_scenario::load(&root.join("couette.toml"), &sets).unwrap();
-    let r = hemodpd_scenario::run(&s, &hemodpd_scenario::RunContext::new(dir.path().join("couette"), 1, false)).unwrap();
+    let r = hemodpd_scenario::run(
+        &s,
+        &hemodpd_scenario::RunContext::new(dir.path().join("couette"), 1, false),
+    )
+    .unwrap();
     assert!(r["line"]["shear_rate"].as_f64().unwrap() > 0.0);
     assert!(r["viscosity"]["value"].as_f64().unwrap().is_finite());
     // a bad value is named

@@ -557,7 +557,10 @@ mod tests {
         assert!(q.link_rel_sd < 0.08, "{q:?}");
         assert!(q.min_angle_deg > 35.0 && q.max_angle_deg < 100.0, "{q:?}");
         assert!(q.valence_histogram.iter().all(|(v, _)| (4..=8).contains(v)), "{q:?}");
-        assert!((q.area / 132.777 - 1.0).abs() < 2e-3 && (q.volume / 92.437 - 1.0).abs() < 2e-3, "{q:?}");
+        assert!(
+            (q.area / 132.777 - 1.0).abs() < 2e-3 && (q.volume / 92.437 - 1.0).abs() < 2e-3,
+            "{q:?}"
+        );
         // every vertex is on the shape
         for v in &mesh.vertices {
             assert!((shape.project(*v) - *v).length() < 1e-9);

@@ -20,7 +20,13 @@ fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
 }
 
 fn pair(f: &WallFluidSection) -> PairParams {
-    PairParams { a: f.a, gamma: f.gamma, kbt: f.kbt, rc: f.cutoff, s: f.weight_exponent }
+    PairParams {
+        a: f.a,
+        gamma: f.gamma,
+        kbt: f.kbt,
+        rc: f.cutoff,
+        s: f.weight_exponent,
+    }
 }
 
 /// Weighted least squares y = c0 + c1 x.
@@ -51,13 +57,27 @@ fn build(
     let mut config = SimConfig::new(box_lengths, r.timestep, seed);
     config.lambda = r.lambda;
     let p = pair(f);
-    let setup = WallSetup { shape, pair: p, density: f.density, thickness: f.cutoff, equilibration_steps: r.equilibration_steps };
+    let setup = WallSetup {
+        shape,
+        pair: p,
+        density: f.density,
+        thickness: f.cutoff,
+        equilibration_steps: r.equilibration_steps,
+    };
     let (field, particles) = walls::build(&config, &setup, seed).map_err(engine_err)?;
     let cfg = WallConfig {
-        reflection: if w.reflection == "specular" { Reflection::Specular } else { Reflection::BounceBack },
+        reflection: if w.reflection == "specular" {
+            Reflection::Specular
+        } else {
+            Reflection::BounceBack
+        },
         bins: w.bins,
         rc: f.cutoff,
-        law: if w.law == "local" { ControlLaw::Local } else { ControlLaw::Gradient },
+        law: if w.law == "local" {
+            ControlLaw::Local
+        } else {
+            ControlLaw::Gradient
+        },
         gain: w.gain,
         update_every: w.update_every,
         adapt: false,
@@ -69,8 +89,12 @@ fn build(
     if let Some(file) = &w.force_file {
         let path = base_dir.join(file);
         if path.exists() {
-            let text = std::fs::read_to_string(&path).map_err(|source| RunError::Io { path: path.clone(), source })?;
-            let prof = WallForceProfile::from_csv(&text).map_err(|e| RunError::Output(format!("{}: {e}", path.display())))?;
+            let text = std::fs::read_to_string(&path).map_err(|source| RunError::Io {
+                path: path.clone(),
+                source,
+            })?;
+            let prof =
+                WallForceProfile::from_csv(&text).map_err(|e| RunError::Output(format!("{}: {e}", path.display())))?;
             if prof.matches(&p, f.density, w.bins) {
                 ext = ext.with_profile(&prof).map_err(engine_err)?;
                 source = format!("file {}", path.display());
@@ -81,14 +105,22 @@ fn build(
         }
     }
     if !loaded && w.initial == "half-space" {
-        ext = ext.with_profile(&WallForceProfile::half_space(p, f.density, w.bins)).map_err(engine_err)?;
+        ext = ext
+            .with_profile(&WallForceProfile::half_space(p, f.density, w.bins))
+            .map_err(engine_err)?;
     }
     let sim = Simulation::with_extension(config, field, particles, ext).map_err(engine_err)?;
     Ok((sim, source))
 }
 
 /// Adaptation (flow on), then the force file is written. Returns the convergence table.
-fn adapt(sim: &mut Simulation<Walls>, s: &WallsSection, f: &WallFluidSection, base_dir: &Path, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
+fn adapt(
+    sim: &mut Simulation<Walls>,
+    s: &WallsSection,
+    f: &WallFluidSection,
+    base_dir: &Path,
+    ctx: &RunContext,
+) -> Result<serde_json::Value, RunError> {
     if s.adaptive && s.adapt_iterations > 0 {
         sim.extension_mut().set_adapt(true);
         sim.run(s.adapt_iterations * s.update_every).map_err(engine_err)?;
@@ -111,14 +143,26 @@ fn adapt(sim: &mut Simulation<Walls>, s: &WallsSection, f: &WallFluidSection, ba
         .iter()
         .map(|h| json!({"iteration": h.iteration, "step": h.step, "max_density_deviation": h.max_deviation, "relative_density": h.relative_density, "forces": h.forces}))
         .collect();
-    Ok(json!({ "iterations": table, "final_forces": sim.extension().forces(), "bin_centres": sim.extension().bin_centres() }))
+    Ok(
+        json!({ "iterations": table, "final_forces": sim.extension().forces(), "bin_centres": sim.extension().bin_centres() }),
+    )
 }
 
 /// Seconds per (step × fluid particle) of the walled run and of a periodic box of the same
 /// fluid with the same number of fluid particles.
-fn overhead(sim: &mut Simulation<Walls>, f: &WallFluidSection, r: &WallRunSection, seed: u64) -> Result<serde_json::Value, RunError> {
+fn overhead(
+    sim: &mut Simulation<Walls>,
+    f: &WallFluidSection,
+    r: &WallRunSection,
+    seed: u64,
+) -> Result<serde_json::Value, RunError> {
     let steps = 500u64;
-    let nf = sim.particles().ptype.iter().filter(|&&t| t == walls::FLUID_TYPE).count();
+    let nf = sim
+        .particles()
+        .ptype
+        .iter()
+        .filter(|&&t| t == walls::FLUID_TYPE)
+        .count();
     let sampling = true;
     sim.extension_mut().set_sampling(false);
     let t0 = Instant::now();
@@ -129,7 +173,11 @@ fn overhead(sim: &mut Simulation<Walls>, f: &WallFluidSection, r: &WallRunSectio
     let mut config = SimConfig::new(DVec3::splat(l), r.timestep, seed);
     config.lambda = r.lambda;
     let field = ForceField::single(pair(f));
-    let spec = init::FluidSpec { density: f.density, kbt: f.kbt, ..init::FluidSpec::standard() };
+    let spec = init::FluidSpec {
+        density: f.density,
+        kbt: f.kbt,
+        ..init::FluidSpec::standard()
+    };
     let p = init::fluid(&config, &field, &spec, seed).map_err(engine_err)?;
     let n = p.len();
     let mut plain = Simulation::new(config, field, p).map_err(engine_err)?;
@@ -164,9 +212,22 @@ fn write_csv(ctx: &RunContext, name: &str, header: &str, rows: &[Vec<f64>]) -> R
 pub fn run_tube(s: &TubeScenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let (f, t, r) = (&s.fluid, &s.tube, &s.run);
     let side = 2.0 * (t.radius + f.cutoff) + 0.5;
-    let shape = WallShape::Cylinder { axis: 2, centre: [0.5 * side; 2], radius: t.radius };
-    let (mut sim, source) = build(shape, DVec3::new(side, side, t.length), f, &s.walls, r, s.seed, &s.base_dir)?;
-    sim.set_body_force(0, DVec3::new(0.0, 0.0, t.body_force)).map_err(engine_err)?;
+    let shape = WallShape::Cylinder {
+        axis: 2,
+        centre: [0.5 * side; 2],
+        radius: t.radius,
+    };
+    let (mut sim, source) = build(
+        shape,
+        DVec3::new(side, side, t.length),
+        f,
+        &s.walls,
+        r,
+        s.seed,
+        &s.base_dir,
+    )?;
+    sim.set_body_force(0, DVec3::new(0.0, 0.0, t.body_force))
+        .map_err(engine_err)?;
     let adaptation = adapt(&mut sim, &s.walls, f, &s.base_dir, ctx)?;
     sim.run(r.flow_steps).map_err(engine_err)?;
     sim.extension_mut().reset_measurements();
@@ -209,7 +270,11 @@ pub fn run_tube(s: &TubeScenario, ctx: &RunContext) -> Result<serde_json::Value,
     write_csv(ctx, "velocity_profile.csv", "r,v_z,parabola,density", &rows)?;
     let near = sim.extension().relative_density();
     let dev = near.iter().map(|x| (x - 1.0).abs()).fold(0.0, f64::max);
-    let over = if r.measure_overhead { overhead(&mut sim, f, r, s.seed)? } else { serde_json::Value::Null };
+    let over = if r.measure_overhead {
+        overhead(&mut sim, f, r, s.seed)?
+    } else {
+        serde_json::Value::Null
+    };
     let um = t.length_scale_um_per_rc;
     Ok(json!({
         "units": "DPD model units: length rc, energy kBT, mass m",
@@ -243,7 +308,15 @@ pub fn run_couette(s: &CouetteScenario, ctx: &RunContext) -> Result<serde_json::
         lower_velocity: DVec3::new(-u, 0.0, 0.0),
         upper_velocity: DVec3::new(u, 0.0, 0.0),
     };
-    let (mut sim, source) = build(shape, DVec3::new(pl.width[0], pl.width[1], period), f, &s.walls, r, s.seed, &s.base_dir)?;
+    let (mut sim, source) = build(
+        shape,
+        DVec3::new(pl.width[0], pl.width[1], period),
+        f,
+        &s.walls,
+        r,
+        s.seed,
+        &s.base_dir,
+    )?;
     let adaptation = adapt(&mut sim, &s.walls, f, &s.base_dir, ctx)?;
     sim.run(r.flow_steps).map_err(engine_err)?;
     sim.extension_mut().reset_measurements();
@@ -278,10 +351,15 @@ pub fn run_couette(s: &CouetteScenario, ctx: &RunContext) -> Result<serde_json::
         }
         stress.push((fw[0] - fw[1]) / (2.0 * area));
     }
-    let (sigma, sigma_se) = observe::block_error(&stress).or_else(|_| observe::block_average(&stress, 2)).unwrap_or((f64::NAN, f64::NAN));
+    let (sigma, sigma_se) = observe::block_error(&stress)
+        .or_else(|_| observe::block_average(&stress, 2))
+        .unwrap_or((f64::NAN, f64::NAN));
     let z: Vec<f64> = (0..nb).map(|b| lower + (b as f64 + 0.5) * pl.gap / nb as f64).collect();
     let v: Vec<f64> = vx.iter().zip(&cnt).map(|(a, c)| a / c.max(1.0)).collect();
-    let rho: Vec<f64> = cnt.iter().map(|c| c / (samples.max(1) as f64 * area * pl.gap / nb as f64)).collect();
+    let rho: Vec<f64> = cnt
+        .iter()
+        .map(|c| c / (samples.max(1) as f64 * area * pl.gap / nb as f64))
+        .collect();
     let (c0, c1) = fit_line(&z, &v, &cnt);
     let fit: Vec<f64> = z.iter().map(|x| c0 + c1 * x).collect();
     let rows: Vec<Vec<f64>> = (0..nb).map(|k| vec![z[k], v[k], fit[k], rho[k]]).collect();
@@ -290,7 +368,11 @@ pub fn run_couette(s: &CouetteScenario, ctx: &RunContext) -> Result<serde_json::
     let slip_hi = (u - (c0 + c1 * upper)) / (2.0 * u);
     let near = sim.extension().relative_density();
     let dev = near.iter().map(|x| (x - 1.0).abs()).fold(0.0, f64::max);
-    let over = if r.measure_overhead { overhead(&mut sim, f, r, s.seed)? } else { serde_json::Value::Null };
+    let over = if r.measure_overhead {
+        overhead(&mut sim, f, r, s.seed)?
+    } else {
+        serde_json::Value::Null
+    };
     Ok(json!({
         "units": "DPD model units: length rc, energy kBT, mass m",
         "geometry": { "gap": pl.gap, "width": pl.width, "wall_speed": u },

@@ -20,8 +20,7 @@ impl Curve {
     /// Reads the curve from a stretching run's `summary.json`.
     pub fn from_summary(label: &str, summary: &serde_json::Value) -> Option<Self> {
         let r = &summary["results"];
-        let arr =
-            |k: &str| -> Option<Vec<f64>> { r[k].as_array()?.iter().map(|v| v.as_f64()).collect() };
+        let arr = |k: &str| -> Option<Vec<f64>> { r[k].as_array()?.iter().map(|v| v.as_f64()).collect() };
         Some(Curve {
             label: label.to_string(),
             force_pn: arr("force_pn")?,
@@ -41,22 +40,14 @@ const COLORS: [(u8, u8, u8); 6] = [
 ];
 
 /// D_A and D_T against force for each curve, with Mills et al. (2004) and their error bars.
-pub fn stretching_chart(
-    path: &Path,
-    title: &str,
-    curves: &[Curve],
-) -> Result<(), hemodpd_io::IoError> {
+pub fn stretching_chart(path: &Path, title: &str, curves: &[Curve]) -> Result<(), hemodpd_io::IoError> {
     let mut series = Vec::new();
     for (k, c) in curves.iter().enumerate() {
         let (r, g, b) = COLORS[k % COLORS.len()];
         series.push(
             Series::line(
                 format!("{} D_A", c.label),
-                c.force_pn
-                    .iter()
-                    .cloned()
-                    .zip(c.axial_um.iter().cloned())
-                    .collect(),
+                c.force_pn.iter().cloned().zip(c.axial_um.iter().cloned()).collect(),
             )
             .with_color(r, g, b),
         );
@@ -76,9 +67,7 @@ pub fn stretching_chart(
     series.push(
         Series::error_bars(
             "Mills 2004 D_A",
-            m.iter()
-                .map(|p| (p.force_pn, 0.5 * (p.da_lo + p.da_hi)))
-                .collect(),
+            m.iter().map(|p| (p.force_pn, 0.5 * (p.da_lo + p.da_hi))).collect(),
             m.iter().map(|p| 0.5 * (p.da_hi - p.da_lo)).collect(),
         )
         .with_color(0, 0, 0),
@@ -86,22 +75,25 @@ pub fn stretching_chart(
     series.push(
         Series::error_bars(
             "Mills 2004 D_T",
-            m.iter()
-                .map(|p| (p.force_pn, 0.5 * (p.dt_lo + p.dt_hi)))
-                .collect(),
+            m.iter().map(|p| (p.force_pn, 0.5 * (p.dt_lo + p.dt_hi))).collect(),
             m.iter().map(|p| 0.5 * (p.dt_hi - p.dt_lo)).collect(),
         )
         .with_color(90, 90, 90),
     );
-    let opts = ChartOptions { width: 1000, height: 700, x_range: Some((-5.0, 205.0)), y_range: Some((0.0, curves.iter().flat_map(|c| c.axial_um.iter()).fold(19.0f64, |m, &v| m.max(v + 1.0)))), legend: Some(LegendPosition::UpperLeft) };
-    line_chart_with(
-        path,
-        title,
-        "stretching force (pN)",
-        "diameter (µm)",
-        &series,
-        &opts,
-    )
+    let opts = ChartOptions {
+        width: 1000,
+        height: 700,
+        x_range: Some((-5.0, 205.0)),
+        y_range: Some((
+            0.0,
+            curves
+                .iter()
+                .flat_map(|c| c.axial_um.iter())
+                .fold(19.0f64, |m, &v| m.max(v + 1.0)),
+        )),
+        legend: Some(LegendPosition::UpperLeft),
+    };
+    line_chart_with(path, title, "stretching force (pN)", "diameter (µm)", &series, &opts)
 }
 
 /// A shape to render: a title, vertex positions (µm) and triangles.
@@ -113,17 +105,11 @@ pub struct Shape<'a> {
 
 /// Renders shapes in a grid (`columns` per row), all at one scale, viewed obliquely (60° from
 /// the stretch axis' normal plane) with Lambert shading and the triangulation drawn.
-pub fn render_shapes(
-    path: &Path,
-    shapes: &[Shape],
-    columns: usize,
-    draw_edges: bool,
-) -> Result<(), String> {
+pub fn render_shapes(path: &Path, shapes: &[Shape], columns: usize, draw_edges: bool) -> Result<(), String> {
     let columns = columns.max(1);
     let rows = shapes.len().div_ceil(columns).max(1);
     let (pw, ph) = (420u32, 300u32);
-    let root =
-        BitMapBackend::new(path, (pw * columns as u32, ph * rows as u32)).into_drawing_area();
+    let root = BitMapBackend::new(path, (pw * columns as u32, ph * rows as u32)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let panels = root.split_evenly((rows, columns));
     // view: rotate about x so the viewer looks down at the cell's face from 30° above its plane
@@ -138,12 +124,10 @@ pub fn render_shapes(
         .fold(1.0, f64::max);
     let scale = 0.46 * pw as f64 / extent;
     for (shape, panel) in shapes.iter().zip(panels.iter()) {
-        let centre =
-            shape.positions.iter().copied().sum::<DVec3>() / shape.positions.len().max(1) as f64;
+        let centre = shape.positions.iter().copied().sum::<DVec3>() / shape.positions.len().max(1) as f64;
         let pts: Vec<DVec3> = shape.positions.iter().map(|&p| view(p - centre)).collect();
         let mut order: Vec<usize> = (0..shape.triangles.len()).collect();
-        let depth =
-            |t: &[u32; 3]| pts[t[0] as usize].z + pts[t[1] as usize].z + pts[t[2] as usize].z;
+        let depth = |t: &[u32; 3]| pts[t[0] as usize].z + pts[t[1] as usize].z + pts[t[2] as usize].z;
         order.sort_by(|&a, &b| depth(&shape.triangles[a]).total_cmp(&depth(&shape.triangles[b])));
         let to_px = |p: DVec3| {
             (
@@ -165,19 +149,12 @@ pub fn render_shapes(
                 let mut closed = poly;
                 closed.push(closed[0]);
                 panel
-                    .draw(&PathElement::new(
-                        closed,
-                        RGBColor(70, 20, 20).stroke_width(1),
-                    ))
+                    .draw(&PathElement::new(closed, RGBColor(70, 20, 20).stroke_width(1)))
                     .map_err(|e| e.to_string())?;
             }
         }
         panel
-            .draw(&Text::new(
-                shape.title.clone(),
-                (10, 8),
-                ("sans-serif", 18).into_font(),
-            ))
+            .draw(&Text::new(shape.title.clone(), (10, 8), ("sans-serif", 18).into_font()))
             .map_err(|e| e.to_string())?;
     }
     root.present().map_err(|e| e.to_string())

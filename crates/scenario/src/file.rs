@@ -9,10 +9,7 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
     #[error("{file}: cannot read: {source}")]
-    Read {
-        file: String,
-        source: std::io::Error,
-    },
+    Read { file: String, source: std::io::Error },
     #[error("{file}: {message}")]
     Syntax { file: String, message: String },
     #[error("{file}: key `{key}` = {value} is not allowed: {allowed}")]
@@ -23,11 +20,7 @@ pub enum ScenarioError {
         allowed: String,
     },
     #[error("{file}: missing key `{key}` ({what})")]
-    Missing {
-        file: String,
-        key: String,
-        what: String,
-    },
+    Missing { file: String, key: String, what: String },
     #[error("--set {assignment}: {message}")]
     Override { assignment: String, message: String },
 }
@@ -204,7 +197,12 @@ pub struct FluidOutput {
 
 impl Default for FluidOutput {
     fn default() -> Self {
-        Self { trajectory_every_steps: 0, particle_stride: 1, field_bins: 20, checkpoint_every_steps: 0 }
+        Self {
+            trajectory_every_steps: 0,
+            particle_stride: 1,
+            field_bins: 20,
+            checkpoint_every_steps: 0,
+        }
     }
 }
 
@@ -563,9 +561,7 @@ fn apply_set(table: &mut toml::Table, assignment: &str) -> Result<(), ScenarioEr
         assignment: assignment.to_string(),
         message: m.to_string(),
     };
-    let (key, raw) = assignment
-        .split_once('=')
-        .ok_or_else(|| bad("expected key=value"))?;
+    let (key, raw) = assignment.split_once('=').ok_or_else(|| bad("expected key=value"))?;
     let key = key.trim();
     if key.is_empty() || key.split('.').any(str::is_empty) {
         return Err(bad("empty key"));
@@ -592,14 +588,7 @@ struct Check<'a> {
 }
 
 impl Check<'_> {
-    fn range(
-        &self,
-        key: &str,
-        v: f64,
-        lo: f64,
-        hi: f64,
-        allowed: &str,
-    ) -> Result<(), ScenarioError> {
+    fn range(&self, key: &str, v: f64, lo: f64, hi: f64, allowed: &str) -> Result<(), ScenarioError> {
         if v.is_finite() && v >= lo && v <= hi {
             Ok(())
         } else {
@@ -678,11 +667,7 @@ fn validate_stretching(s: &StretchingScenario, file: &str) -> Result<(), Scenari
     validate_membrane(&s.membrane, &c)?;
     let st = &s.stretching;
     if st.forces_pn.is_empty() {
-        return Err(c.fail(
-            "stretching.forces_pn",
-            "[]",
-            "a non-empty list of forces in pN",
-        ));
+        return Err(c.fail("stretching.forces_pn", "[]", "a non-empty list of forces in pN"));
     }
     for (i, &f) in st.forces_pn.iter().enumerate() {
         c.range(
@@ -693,7 +678,11 @@ fn validate_stretching(s: &StretchingScenario, file: &str) -> Result<(), Scenari
             "a force in pN between 0 and 500",
         )?;
         if i > 0 && f <= st.forces_pn[i - 1] {
-            return Err(c.fail(&format!("stretching.forces_pn[{i}]"), f, "forces in strictly increasing order (each equilibrium continues from the previous one)"));
+            return Err(c.fail(
+                &format!("stretching.forces_pn[{i}]"),
+                f,
+                "forces in strictly increasing order (each equilibrium continues from the previous one)",
+            ));
         }
     }
     c.range(
@@ -726,13 +715,7 @@ fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
         30.0,
         "a number density between 0.1 and 30 per rc³ (standard: 3)",
     )?;
-    c.range(
-        "fluid.cutoff",
-        f.cutoff,
-        0.1,
-        10.0,
-        "a cut-off between 0.1 and 10",
-    )?;
+    c.range("fluid.cutoff", f.cutoff, 0.1, 10.0, "a cut-off between 0.1 and 10")?;
     for (k, &l) in f.box_size.iter().enumerate() {
         c.range(
             &format!("fluid.box_size[{k}]"),
@@ -750,13 +733,7 @@ fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
             "a box holding at most 5e8 particles at this density",
         ));
     }
-    c.range(
-        "fluid.a",
-        f.a,
-        0.0,
-        1e4,
-        "a conservative amplitude between 0 and 1e4",
-    )?;
+    c.range("fluid.a", f.a, 0.0, 1e4, "a conservative amplitude between 0 and 1e4")?;
     c.range(
         "fluid.gamma",
         f.gamma,
@@ -764,13 +741,7 @@ fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
         1e4,
         "a dissipative coefficient between 0 and 1e4",
     )?;
-    c.range(
-        "fluid.kbt",
-        f.kbt,
-        1e-6,
-        1e3,
-        "a thermal energy between 1e-6 and 1e3",
-    )?;
+    c.range("fluid.kbt", f.kbt, 1e-6, 1e3, "a thermal energy between 1e-6 and 1e3")?;
     c.range(
         "fluid.weight_exponent",
         f.weight_exponent,
@@ -806,39 +777,94 @@ fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
     Ok(())
 }
 
-fn validate_wall_common(kind: &str, want: &str, f: &WallFluidSection, w: &WallsSection, r: &WallRunSection, c: &Check) -> Result<(), ScenarioError> {
+fn validate_wall_common(
+    kind: &str,
+    want: &str,
+    f: &WallFluidSection,
+    w: &WallsSection,
+    r: &WallRunSection,
+    c: &Check,
+) -> Result<(), ScenarioError> {
     if kind != want {
         return Err(c.fail("kind", kind, &format!("{want:?}")));
     }
-    c.range("fluid.density", f.density, 0.1, 30.0, "a number density between 0.1 and 30 per rc³ (standard: 3)")?;
+    c.range(
+        "fluid.density",
+        f.density,
+        0.1,
+        30.0,
+        "a number density between 0.1 and 30 per rc³ (standard: 3)",
+    )?;
     c.range("fluid.a", f.a, 0.0, 1e4, "a conservative amplitude between 0 and 1e4")?;
-    c.range("fluid.gamma", f.gamma, 1e-3, 1e4, "a dissipative coefficient between 1e-3 and 1e4 (walls need dissipation)")?;
+    c.range(
+        "fluid.gamma",
+        f.gamma,
+        1e-3,
+        1e4,
+        "a dissipative coefficient between 1e-3 and 1e4 (walls need dissipation)",
+    )?;
     c.range("fluid.kbt", f.kbt, 1e-6, 1e3, "a thermal energy between 1e-6 and 1e3")?;
     c.range("fluid.cutoff", f.cutoff, 0.1, 10.0, "a cut-off between 0.1 and 10")?;
-    c.range("fluid.weight_exponent", f.weight_exponent, 0.05, 4.0, "an exponent between 0.05 and 4")?;
+    c.range(
+        "fluid.weight_exponent",
+        f.weight_exponent,
+        0.05,
+        4.0,
+        "an exponent between 0.05 and 4",
+    )?;
     if !["bounce-back", "specular"].contains(&w.reflection.as_str()) {
-        return Err(c.fail("walls.reflection", format!("{:?}", w.reflection), "\"bounce-back\" or \"specular\""));
+        return Err(c.fail(
+            "walls.reflection",
+            format!("{:?}", w.reflection),
+            "\"bounce-back\" or \"specular\"",
+        ));
     }
     if !["gradient", "local"].contains(&w.law.as_str()) {
         return Err(c.fail("walls.law", format!("{:?}", w.law), "\"gradient\" or \"local\""));
     }
     if !["zero", "half-space"].contains(&w.initial.as_str()) {
-        return Err(c.fail("walls.initial", format!("{:?}", w.initial), "\"zero\" or \"half-space\""));
+        return Err(c.fail(
+            "walls.initial",
+            format!("{:?}", w.initial),
+            "\"zero\" or \"half-space\"",
+        ));
     }
     if w.bins == 0 || w.bins > 100 {
         return Err(c.fail("walls.bins", w.bins, "an integer from 1 to 100"));
     }
-    c.range("walls.gain", w.gain, 0.0, 100.0, "a gain between 0 and 100 (stable below ≈ kBT·bins/rc; default 3)")?;
+    c.range(
+        "walls.gain",
+        w.gain,
+        0.0,
+        100.0,
+        "a gain between 0 and 100 (stable below ≈ kBT·bins/rc; default 3)",
+    )?;
     if w.update_every == 0 {
         return Err(c.fail("walls.update_every", 0, "a positive number of steps"));
     }
-    c.range("run.timestep", r.timestep, 1e-6, 0.05, "a time step between 1e-6 and 0.05 (standard: 0.01)")?;
-    c.range("run.lambda", r.lambda, 0.0, 1.0, "a Groot–Warren λ between 0 and 1 (0.5 standard)")?;
+    c.range(
+        "run.timestep",
+        r.timestep,
+        1e-6,
+        0.05,
+        "a time step between 1e-6 and 0.05 (standard: 0.01)",
+    )?;
+    c.range(
+        "run.lambda",
+        r.lambda,
+        0.0,
+        1.0,
+        "a Groot–Warren λ between 0 and 1 (0.5 standard)",
+    )?;
     if r.steps == 0 {
         return Err(c.fail("run.steps", 0, "a positive number of steps"));
     }
     if r.sample_every == 0 || r.sample_every > r.steps {
-        return Err(c.fail("run.sample_every", r.sample_every, "a positive interval no longer than run.steps"));
+        return Err(c.fail(
+            "run.sample_every",
+            r.sample_every,
+            "a positive interval no longer than run.steps",
+        ));
     }
     if r.profile_bins < 2 || r.profile_bins > 1000 {
         return Err(c.fail("run.profile_bins", r.profile_bins, "an integer from 2 to 1000"));
@@ -850,11 +876,35 @@ fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
     let c = Check { file };
     validate_wall_common(&s.kind, "poiseuille-tube", &s.fluid, &s.walls, &s.run, &c)?;
     let rc = s.fluid.cutoff;
-    c.range("tube.radius", s.tube.radius, 2.0 * rc, 200.0, "a radius between 2 cut-offs and 200 rc")?;
-    c.range("tube.length", s.tube.length, 3.0 * rc, 1e4, "a length of at least 3 cut-offs")?;
-    c.range("tube.body_force", s.tube.body_force, -10.0, 10.0, "a body force between −10 and 10 (model units; 0.05–0.2 keeps the flow laminar and the shear rate moderate)")?;
+    c.range(
+        "tube.radius",
+        s.tube.radius,
+        2.0 * rc,
+        200.0,
+        "a radius between 2 cut-offs and 200 rc",
+    )?;
+    c.range(
+        "tube.length",
+        s.tube.length,
+        3.0 * rc,
+        1e4,
+        "a length of at least 3 cut-offs",
+    )?;
+    c.range(
+        "tube.body_force",
+        s.tube.body_force,
+        -10.0,
+        10.0,
+        "a body force between −10 and 10 (model units; 0.05–0.2 keeps the flow laminar and the shear rate moderate)",
+    )?;
     if let Some(l) = s.tube.length_scale_um_per_rc {
-        c.range("tube.length_scale_um_per_rc", l, 1e-3, 1e3, "µm per rc between 1e-3 and 1e3")?;
+        c.range(
+            "tube.length_scale_um_per_rc",
+            l,
+            1e-3,
+            1e3,
+            "µm per rc between 1e-3 and 1e3",
+        )?;
     }
     let side = 2.0 * (s.tube.radius + rc) + 0.5;
     if s.fluid.density * side * side * s.tube.length > 5e8 {
@@ -867,11 +917,29 @@ fn validate_couette(s: &CouetteScenario, file: &str) -> Result<(), ScenarioError
     let c = Check { file };
     validate_wall_common(&s.kind, "couette", &s.fluid, &s.walls, &s.run, &c)?;
     let rc = s.fluid.cutoff;
-    c.range("plates.gap", s.plates.gap, 3.0 * rc, 1e4, "a gap of at least 3 cut-offs")?;
+    c.range(
+        "plates.gap",
+        s.plates.gap,
+        3.0 * rc,
+        1e4,
+        "a gap of at least 3 cut-offs",
+    )?;
     for (k, &w) in s.plates.width.iter().enumerate() {
-        c.range(&format!("plates.width[{k}]"), w, 3.0 * rc, 1e4, "a box edge of at least 3 cut-offs")?;
+        c.range(
+            &format!("plates.width[{k}]"),
+            w,
+            3.0 * rc,
+            1e4,
+            "a box edge of at least 3 cut-offs",
+        )?;
     }
-    c.range("plates.wall_speed", s.plates.wall_speed, -5.0, 5.0, "a plate speed between −5 and 5 (model units; |U|·Δt must stay well below the cell size)")?;
+    c.range(
+        "plates.wall_speed",
+        s.plates.wall_speed,
+        -5.0,
+        5.0,
+        "a plate speed between −5 and 5 (model units; |U|·Δt must stay well below the cell size)",
+    )?;
     if s.fluid.density * s.plates.width[0] * s.plates.width[1] * (s.plates.gap + 2.0 * rc) > 5e8 {
         return Err(c.fail("plates.gap", s.plates.gap, "a channel holding at most 5e8 particles"));
     }

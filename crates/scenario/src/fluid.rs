@@ -41,7 +41,13 @@ fn config_and_field(s: &FluidScenario) -> (SimConfig, ForceField) {
     let f = &s.fluid;
     let mut config = SimConfig::new(DVec3::from_array(f.box_size), s.run.timestep, s.seed);
     config.lambda = s.run.lambda;
-    let field = ForceField::single(PairParams { a: f.a, gamma: f.gamma, kbt: f.kbt, rc: f.cutoff, s: f.weight_exponent });
+    let field = ForceField::single(PairParams {
+        a: f.a,
+        gamma: f.gamma,
+        kbt: f.kbt,
+        rc: f.cutoff,
+        s: f.weight_exponent,
+    });
     (config, field)
 }
 
@@ -49,14 +55,25 @@ fn config_and_field(s: &FluidScenario) -> (SimConfig, ForceField) {
 pub fn build(s: &FluidScenario) -> Result<Simulation, RunError> {
     let (config, field) = config_and_field(s);
     let f = &s.fluid;
-    let spec = FluidSpec { density: f.density, ptype: 0, kbt: f.kbt, placement: Placement::JitteredLattice { jitter: 0.1 }, first_id: 0 };
+    let spec = FluidSpec {
+        density: f.density,
+        ptype: 0,
+        kbt: f.kbt,
+        placement: Placement::JitteredLattice { jitter: 0.1 },
+        first_id: 0,
+    };
     let particles = init::fluid(&config, &field, &spec, s.seed).map_err(engine_err)?;
     Simulation::new(config, field, particles).map_err(engine_err)
 }
 
 /// The fluid trajectory's units: DPD model units, stored as they are (no SI mapping).
 pub fn model_units() -> UnitSystem {
-    UnitSystem { length_m: 1.0, time_s: 1.0, energy_j: 1.0, label: "DPD model units (rc, kBT, m); no SI mapping".into() }
+    UnitSystem {
+        length_m: 1.0,
+        time_s: 1.0,
+        energy_j: 1.0,
+        label: "DPD model units (rc, kBT, m); no SI mapping".into(),
+    }
 }
 
 /// Is `step` (counted from 0, equilibration included) a frame of the trajectory schedule?
@@ -83,7 +100,12 @@ struct Series {
 
 fn save_checkpoint(s: &FluidScenario, ctx: &RunContext, sim: &Simulation, series: &Series) -> Result<(), RunError> {
     let p = sim.particles();
-    let mut ck = Checkpoint::new(sim.step_count(), sim.time(), s.seed, toml::to_string(s).unwrap_or_default());
+    let mut ck = Checkpoint::new(
+        sim.step_count(),
+        sim.time(),
+        s.seed,
+        toml::to_string(s).unwrap_or_default(),
+    );
     ck.set_scalar("scenario_kind", ScalarValue::Str("dpd-fluid".into()));
     ck.insert_vec3("positions", &p.pos);
     ck.insert_vec3("velocities", &p.vel);
@@ -109,9 +131,18 @@ fn restore(s: &FluidScenario, ck: &Checkpoint) -> Result<(Simulation, Series), R
         id: ck.u32s("ids").map_err(bad)?.to_vec(),
     };
     if particles.ptype.len() != n || particles.id.len() != n {
-        return Err(RunError::Output(format!("checkpoint: {n} positions but {} types and {} ids", particles.ptype.len(), particles.id.len())));
+        return Err(RunError::Output(format!(
+            "checkpoint: {n} positions but {} types and {} ids",
+            particles.ptype.len(),
+            particles.id.len()
+        )));
     }
-    let state = SimState { config, field, particles, step: ck.step };
+    let state = SimState {
+        config,
+        field,
+        particles,
+        step: ck.step,
+    };
     let sim = Simulation::from_state(state, ()).map_err(engine_err)?;
     let series = Series {
         temperature: ck.f64s("temperature_samples").map_err(bad)?.to_vec(),
@@ -144,7 +175,15 @@ fn binned_fields(sim: &Simulation, bins: usize) -> (GridSpec, Vec<f64>, Vec<f64>
         }
         count[k] /= slab;
     }
-    (GridSpec { origin: DVec3::ZERO, spacing: DVec3::new(l.x, l.y, dz), shape: [1, 1, bins] }, count, vel)
+    (
+        GridSpec {
+            origin: DVec3::ZERO,
+            spacing: DVec3::new(l.x, l.y, dz),
+            shape: [1, 1, bins],
+        },
+        count,
+        vel,
+    )
 }
 
 fn write_frame(s: &FluidScenario, w: &mut TrajectoryWriter, sim: &Simulation) -> Result<(), RunError> {
@@ -153,11 +192,30 @@ fn write_frame(s: &FluidScenario, w: &mut TrajectoryWriter, sim: &Simulation) ->
     let pos: Vec<DVec3> = p.pos.iter().step_by(stride).copied().collect();
     let vel: Vec<DVec3> = p.vel.iter().step_by(stride).copied().collect();
     let types: Vec<u8> = p.ptype.iter().step_by(stride).map(|&t| t as u8).collect();
-    w.append_fluid_frame(sim.step_count(), sim.time(), &pos, Some(&vel), Some(&types)).map_err(out_err)?;
+    w.append_fluid_frame(sim.step_count(), sim.time(), &pos, Some(&vel), Some(&types))
+        .map_err(out_err)?;
     if s.output.field_bins > 0 {
         let (grid, rho, vel) = binned_fields(sim, s.output.field_bins as usize);
-        w.append_field("density", sim.step_count(), sim.time(), &grid, 1, &rho, hemodpd_io::Quantity::NumberDensity).map_err(out_err)?;
-        w.append_field("velocity", sim.step_count(), sim.time(), &grid, 3, &vel, hemodpd_io::Quantity::Velocity).map_err(out_err)?;
+        w.append_field(
+            "density",
+            sim.step_count(),
+            sim.time(),
+            &grid,
+            1,
+            &rho,
+            hemodpd_io::Quantity::NumberDensity,
+        )
+        .map_err(out_err)?;
+        w.append_field(
+            "velocity",
+            sim.step_count(),
+            sim.time(),
+            &grid,
+            3,
+            &vel,
+            hemodpd_io::Quantity::Velocity,
+        )
+        .map_err(out_err)?;
     }
     Ok(())
 }
@@ -168,7 +226,11 @@ pub fn run(s: &FluidScenario, ctx: &RunContext) -> Result<serde_json::Value, Run
 }
 
 /// Runs the scenario, from a checkpoint when one is given.
-pub fn run_from(s: &FluidScenario, ctx: &RunContext, checkpoint: Option<&Checkpoint>) -> Result<serde_json::Value, RunError> {
+pub fn run_from(
+    s: &FluidScenario,
+    ctx: &RunContext,
+    checkpoint: Option<&Checkpoint>,
+) -> Result<serde_json::Value, RunError> {
     let (mut sim, mut series) = match checkpoint {
         Some(ck) => restore(s, ck)?,
         None => (build(s)?, Series::default()),
@@ -178,7 +240,9 @@ pub fn run_from(s: &FluidScenario, ctx: &RunContext, checkpoint: Option<&Checkpo
     let total = eq + s.run.steps;
     let start = sim.step_count();
     if start > total {
-        return Err(RunError::Output(format!("checkpoint at step {start} is past the end of the run ({total} steps)")));
+        return Err(RunError::Output(format!(
+            "checkpoint at step {start} is past the end of the run ({total} steps)"
+        )));
     }
     let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
     let mut traj = if s.output.trajectory_every_steps > 0 {
@@ -195,14 +259,23 @@ pub fn run_from(s: &FluidScenario, ctx: &RunContext, checkpoint: Option<&Checkpo
                 w
             }
             _ => {
-                let meta = RunMetadata::new("dpd-fluid", toml::to_string(s).unwrap_or_default(), s.seed, model_units());
+                let meta = RunMetadata::new(
+                    "dpd-fluid",
+                    toml::to_string(s).unwrap_or_default(),
+                    s.seed,
+                    model_units(),
+                );
                 TrajectoryWriter::create(&traj_path, &meta).map_err(out_err)?
             }
         })
     } else {
         None
     };
-    let mode = if ctx.progress { ProgressMode::Auto } else { ProgressMode::Quiet };
+    let mode = if ctx.progress {
+        ProgressMode::Auto
+    } else {
+        ProgressMode::Quiet
+    };
     let mut progress = Progress::new(total, start, mode, 1.0, "τ");
     let report_every = (total / 200).max(1);
     let mut t_prod = std::time::Instant::now();
@@ -234,7 +307,10 @@ pub fn run_from(s: &FluidScenario, ctx: &RunContext, checkpoint: Option<&Checkpo
             }
             save_checkpoint(s, ctx, &sim, &series)?;
             progress.finish(step, sim.time());
-            return Err(RunError::Interrupted { step, dir: ctx.out_dir.clone() });
+            return Err(RunError::Interrupted {
+                step,
+                dir: ctx.out_dir.clone(),
+            });
         }
         if step == eq {
             t_prod = std::time::Instant::now();
@@ -242,8 +318,12 @@ pub fn run_from(s: &FluidScenario, ctx: &RunContext, checkpoint: Option<&Checkpo
         let sample = step >= eq && (step - eq) % s.run.sample_every == 0;
         if sample {
             let virial = sim.step_with_virial().map_err(engine_err)?;
-            series.temperature.push(observe::temperature(sim.particles(), sim.field()));
-            series.pressure.push(observe::pressure(sim.particles(), sim.field(), sim.domain(), &virial));
+            series
+                .temperature
+                .push(observe::temperature(sim.particles(), sim.field()));
+            series
+                .pressure
+                .push(observe::pressure(sim.particles(), sim.field(), sim.domain(), &virial));
         } else {
             sim.step().map_err(engine_err)?;
         }
@@ -268,11 +348,16 @@ pub fn run_from(s: &FluidScenario, ctx: &RunContext, checkpoint: Option<&Checkpo
     let (p_mean, p_se) = stats(&series.pressure).unwrap_or((f64::NAN, f64::NAN));
     let momentum = observe::momentum(sim.particles(), sim.field());
     let f = &s.fluid;
-    let standard = (f.density - 3.0).abs() < 1e-12 && (f.a - 25.0).abs() < 1e-12 && (f.kbt - 1.0).abs() < 1e-12 && (f.cutoff - 1.0).abs() < 1e-12;
+    let standard = (f.density - 3.0).abs() < 1e-12
+        && (f.a - 25.0).abs() < 1e-12
+        && (f.kbt - 1.0).abs() < 1e-12
+        && (f.cutoff - 1.0).abs() < 1e-12;
     let p0 = sim.particles();
     // a fingerprint of the final state: equal for runs that are bit-identical
     let fingerprint = p0.pos.iter().chain(&p0.vel).fold(0u64, |h, v| {
-        [v.x, v.y, v.z].iter().fold(h, |h, c| (h ^ c.to_bits()).wrapping_mul(0x100000001b3))
+        [v.x, v.y, v.z]
+            .iter()
+            .fold(h, |h, c| (h ^ c.to_bits()).wrapping_mul(0x100000001b3))
     });
     Ok(json!({
         "particles": n,

@@ -41,7 +41,12 @@ pub struct RunContext {
 impl RunContext {
     /// A context writing to `out_dir` with `threads` threads, progress on or off.
     pub fn new(out_dir: impl Into<PathBuf>, threads: usize, progress: bool) -> Self {
-        Self { out_dir: out_dir.into(), threads, progress, stop_at_step: None }
+        Self {
+            out_dir: out_dir.into(),
+            threads,
+            progress,
+            stop_at_step: None,
+        }
     }
 }
 
@@ -63,10 +68,7 @@ pub enum RunError {
     #[error("output: {0}")]
     Output(String),
     #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
+    Io { path: PathBuf, source: std::io::Error },
     #[error("interrupted at step {step}: checkpoint and final frame written; continue with `hemodpd run --resume {}`", dir.display())]
     Interrupted { step: u64, dir: PathBuf },
     #[error("cannot resume from {dir}: {message}")]
@@ -77,16 +79,30 @@ pub enum RunError {
 /// directory); returns the scenario it holds and the results. The output continues in `dir`.
 pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Value), RunError> {
     let path = dir.join(fluid::CHECKPOINT_FILE);
-    let err = |message: String| RunError::Resume { dir: dir.to_path_buf(), message };
+    let err = |message: String| RunError::Resume {
+        dir: dir.to_path_buf(),
+        message,
+    };
     if !path.exists() {
-        return Err(err(format!("no {} there (only runs with time steps write checkpoints)", fluid::CHECKPOINT_FILE)));
+        return Err(err(format!(
+            "no {} there (only runs with time steps write checkpoints)",
+            fluid::CHECKPOINT_FILE
+        )));
     }
     let ck = hemodpd_io::checkpoint::Checkpoint::load(&path).map_err(|e| err(e.to_string()))?;
-    let scenario = load_str(&ck.scenario_toml, &format!("{} (scenario)", path.display()), &[]).map_err(|e| err(e.to_string()))?;
+    let scenario =
+        load_str(&ck.scenario_toml, &format!("{} (scenario)", path.display()), &[]).map_err(|e| err(e.to_string()))?;
     if scenario.seed() != ck.seed {
-        return Err(err(format!("checkpoint seed {} differs from its scenario's seed {}", ck.seed, scenario.seed())));
+        return Err(err(format!(
+            "checkpoint seed {} differs from its scenario's seed {}",
+            ck.seed,
+            scenario.seed()
+        )));
     }
-    let ctx = RunContext { out_dir: dir.to_path_buf(), ..ctx.clone() };
+    let ctx = RunContext {
+        out_dir: dir.to_path_buf(),
+        ..ctx.clone()
+    };
     let results = match &scenario {
         Scenario::DpdFluid(s) => fluid::run_from(s, &ctx, Some(&ck))?,
         other => return Err(err(format!("{} scenarios do not resume", other.kind()))),

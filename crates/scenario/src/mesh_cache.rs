@@ -39,11 +39,7 @@ pub struct MeshOrigin {
 }
 
 /// Membrane constants in the stretching unit system (µm, pN, pN·µm) for a parameter set.
-pub fn constants_um_pn(
-    p: &ModelParams,
-    k_area_n_per_m: f64,
-    k_volume_n_per_m2: f64,
-) -> MembraneConstants {
+pub fn constants_um_pn(p: &ModelParams, k_area_n_per_m: f64, k_volume_n_per_m2: f64) -> MembraneConstants {
     MembraneConstants::from_params(p, 1e-6, 1e-18, k_area_n_per_m, k_volume_n_per_m2)
 }
 
@@ -92,11 +88,7 @@ pub fn generate(n: usize, seed: u64) -> Result<(Mesh, RelaxReport), crate::RunEr
     let params = ModelParams::coarse_grained(n, 300.0)?;
     let constants = constants_um_pn(&params, 0.0, 0.0);
     let opts = MeshGenOptions::new(n, seed);
-    Ok(meshgen::generate(
-        &EvansFung::healthy_um(),
-        &constants,
-        &opts,
-    )?)
+    Ok(meshgen::generate(&EvansFung::healthy_um(), &constants, &opts)?)
 }
 
 /// Loads a user's mesh file (lengths in µm).

@@ -65,10 +65,7 @@ pub fn compare_with_mills(force: &[f64], da: &[f64], dt: &[f64]) -> serde_json::
     let (mut sa, mut st, mut n) = (0.0, 0.0, 0usize);
     let mut rows = Vec::new();
     for m in mills_2004() {
-        let (Some(a), Some(t)) = (
-            interpolate(force, da, m.force_pn),
-            interpolate(force, dt, m.force_pn),
-        ) else {
+        let (Some(a), Some(t)) = (interpolate(force, da, m.force_pn), interpolate(force, dt, m.force_pn)) else {
             continue;
         };
         sa += (a - m.da_um).powi(2);
@@ -117,11 +114,7 @@ pub fn mesh_of(s: &StretchingScenario) -> Result<(Mesh, serde_json::Value), RunE
 }
 
 /// Builds the membrane model of a scenario on its resting mesh, in µm/pN units.
-pub fn model_of(
-    s: &StretchingScenario,
-    params: &ModelParams,
-    mesh: &Mesh,
-) -> Result<MembraneModel, RunError> {
+pub fn model_of(s: &StretchingScenario, params: &ModelParams, mesh: &Mesh) -> Result<MembraneModel, RunError> {
     let c = constants_um_pn(
         params,
         s.membrane.area_constraint_n_per_m,
@@ -149,7 +142,8 @@ pub fn prepare(s: &StretchingScenario) -> Result<Prepared, RunError> {
     let (mesh, mesh_info) = mesh_of(s)?;
     let model = model_of(s, &params, &mesh)?;
     let quality = mesh.quality()?;
-    let mut info = json!({ "mesh": mesh_info, "mesh_quality": quality, "parameters": params, "reference": s.membrane.reference });
+    let mut info =
+        json!({ "mesh": mesh_info, "mesh_quality": quality, "parameters": params, "reference": s.membrane.reference });
     if s.membrane.reference == ReferenceState::StressFree {
         info["tension_ratio_distribution"] = json!(model.tension_ratio_distribution());
     }
@@ -173,12 +167,7 @@ pub fn solve(
         tolerance: s.stretching.tolerance_pn,
         max_iterations: s.stretching.max_iterations as usize,
     };
-    Ok(stretch::stretch(
-        &p.model,
-        &p.mesh.vertices,
-        &opts,
-        observer,
-    )?)
+    Ok(stretch::stretch(&p.model, &p.mesh.vertices, &opts, observer)?)
 }
 
 /// The scenario's run: solves, writes the shapes, returns the results object.
@@ -192,8 +181,7 @@ pub fn run(s: &StretchingScenario, ctx: &RunContext) -> Result<serde_json::Value
             s.seed,
             stretching_units(),
         );
-        let mut w =
-            TrajectoryWriter::create(ctx.out_dir.join("shapes.h5"), &meta).map_err(out_err)?;
+        let mut w = TrajectoryWriter::create(ctx.out_dir.join("shapes.h5"), &meta).map_err(out_err)?;
         w.write_mesh(&prepared.mesh.triangles).map_err(out_err)?;
         w.set_membrane_reference(prepared.model.area0(), prepared.model.volume0())
             .map_err(out_err)?;
@@ -229,9 +217,7 @@ pub fn run(s: &StretchingScenario, ctx: &RunContext) -> Result<serde_json::Value
                 },
             ];
             // one frame per force: step = time = the frame's index; the force is the scalar "force"
-            if let Err(e) =
-                w.append_membrane_frame(frame, frame as f64, &p.positions, None, &scalars)
-            {
+            if let Err(e) = w.append_membrane_frame(frame, frame as f64, &p.positions, None, &scalars) {
                 write_error.get_or_insert(e);
             }
             frame += 1;
@@ -270,7 +256,12 @@ pub fn run(s: &StretchingScenario, ctx: &RunContext) -> Result<serde_json::Value
 /// The stretching run's units: lengths in µm, energies in pN·µm (so forces in pN); the
 /// trajectory converts to SI. Frames are static equilibria: their time is the frame index.
 pub fn stretching_units() -> UnitSystem {
-    UnitSystem { length_m: 1e-6, time_s: 1.0, energy_j: 1e-18, label: "um, pN*um (forces in pN); static frames: time = frame index, force in /membrane/scalars/force".into() }
+    UnitSystem {
+        length_m: 1e-6,
+        time_s: 1.0,
+        energy_j: 1e-18,
+        label: "um, pN*um (forces in pN); static frames: time = frame index, force in /membrane/scalars/force".into(),
+    }
 }
 
 fn out_err(e: hemodpd_io::IoError) -> RunError {
