@@ -115,8 +115,8 @@ impl Default for ChartOptions {
     }
 }
 
-// Okabe–Ito palette (colour-blind safe).
-const PALETTE: [(u8, u8, u8); 8] = [
+/// The Okabe–Ito colour-blind-safe palette, in the order series take it.
+pub const PALETTE: [(u8, u8, u8); 8] = [
     (0, 114, 178),
     (213, 94, 0),
     (0, 158, 115),

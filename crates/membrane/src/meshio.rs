@@ -207,24 +207,18 @@ pub fn write_mesh(mesh: &Mesh, path: &Path) -> Result<Vec<PathBuf>, MeshError> {
     let name = path.to_string_lossy().to_string();
     let write = |p: &Path, s: String| std::fs::write(p, s).map_err(|e| err(p, e.to_string()));
     let mut out = String::new();
-    if name.ends_with(".off") {
-        writeln!(out, "OFF\n{} {} 0", mesh.vertices.len(), mesh.triangles.len()).unwrap();
-        for v in &mesh.vertices {
-            writeln!(out, "{} {} {}", v.x, v.y, v.z).unwrap();
+    if name.ends_with(".off") || name.ends_with(".ply") {
+        let (nv, nt) = (mesh.vertices.len(), mesh.triangles.len());
+        if name.ends_with(".off") {
+            writeln!(out, "OFF\n{nv} {nt} 0").unwrap();
+        } else {
+            writeln!(
+                out,
+                "ply\nformat ascii 1.0\ncomment hemodpd RBC mesh, lengths in um\nelement vertex {nv}\nproperty double x\nproperty double y\nproperty double z\nelement face {nt}\nproperty list uchar int vertex_indices\nend_header"
+            )
+            .unwrap();
         }
-        for t in &mesh.triangles {
-            writeln!(out, "3 {} {} {}", t[0], t[1], t[2]).unwrap();
-        }
-        write(path, out)?;
-        Ok(vec![path.to_path_buf()])
-    } else if name.ends_with(".ply") {
-        writeln!(
-            out,
-            "ply\nformat ascii 1.0\ncomment hemodpd RBC mesh, lengths in um\nelement vertex {}\nproperty double x\nproperty double y\nproperty double z\nelement face {}\nproperty list uchar int vertex_indices\nend_header",
-            mesh.vertices.len(),
-            mesh.triangles.len()
-        )
-        .unwrap();
+        // the same body for both formats: "x y z" lines, then "3 i j k" lines
         for v in &mesh.vertices {
             writeln!(out, "{} {} {}", v.x, v.y, v.z).unwrap();
         }

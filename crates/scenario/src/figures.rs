@@ -3,7 +3,7 @@
 
 use crate::stretching::mills_2004;
 use glam::DVec3;
-use hemodpd_io::plot::{line_chart_with, ChartOptions, LegendPosition, Series};
+use hemodpd_io::plot::{line_chart_with, ChartOptions, LegendPosition, Series, PALETTE};
 use plotters::prelude::*;
 use std::path::Path;
 
@@ -43,7 +43,7 @@ const COLORS: [(u8, u8, u8); 6] = [
 pub fn stretching_chart(path: &Path, title: &str, curves: &[Curve]) -> Result<(), hemodpd_io::IoError> {
     let mut series = Vec::new();
     for (k, c) in curves.iter().enumerate() {
-        let (r, g, b) = COLORS[k % COLORS.len()];
+        let (r, g, b) = PALETTE[k % 6]; // the first six: black and yellow are kept for the data
         series.push(
             Series::line(
                 format!("{} D_A", c.label),
