@@ -302,6 +302,7 @@ impl WallShape {
 
 /// How a fluid particle that crossed the surface is sent back.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum Reflection {
     /// Mirror the position through the surface; v → 2 u_wall − v (no slip).
     #[default]
@@ -313,6 +314,7 @@ pub enum Reflection {
 /// The update law of the adaptive near-wall force, with e_k = ρ_k/ρ0 − 1 the relative density
 /// error of bin k (time-averaged over `update_every` steps) and α the gain.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum ControlLaw {
     /// F_k ← F_k + α (e_k − e_{k+1}), with e_{N_b} = 0 (the bulk beyond rc). Default. A force
     /// in bin k moves particles from bin k to bin k + 1: in linear response it sets the density

@@ -6,10 +6,10 @@
 //! (or load a saved profile), let the flow develop, sample the profiles, fit, and time the same
 //! number of fluid particles in a periodic box for the wall overhead.
 
-use crate::file::{CouetteScenario, TubeScenario, WallFluidSection, WallRunSection, WallsSection};
+use crate::file::{CouetteScenario, FluidSection, InitialWallForce, TubeScenario, WallRunSection, WallsSection};
 use crate::{RunContext, RunError};
 use glam::DVec3;
-use hemodpd_engine::walls::{self, ControlLaw, Reflection, WallConfig, WallForceProfile, WallSetup, WallShape, Walls};
+use hemodpd_engine::walls::{self, WallConfig, WallForceProfile, WallSetup, WallShape, Walls};
 use hemodpd_engine::{init, observe, ForceField, PairParams, SimConfig, Simulation};
 use serde_json::json;
 use std::path::Path;
@@ -19,7 +19,7 @@ fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
     RunError::Engine(e.to_string())
 }
 
-fn pair(f: &WallFluidSection) -> PairParams {
+fn pair(f: &FluidSection) -> PairParams {
     PairParams {
         a: f.a,
         gamma: f.gamma,
@@ -48,7 +48,7 @@ fn fit_line(x: &[f64], y: &[f64], w: &[f64]) -> (f64, f64) {
 fn build(
     shape: WallShape,
     box_lengths: DVec3,
-    f: &WallFluidSection,
+    f: &FluidSection,
     w: &WallsSection,
     r: &WallRunSection,
     seed: u64,
@@ -66,25 +66,17 @@ fn build(
     };
     let (field, particles) = walls::build(&config, &setup, seed).map_err(engine_err)?;
     let cfg = WallConfig {
-        reflection: if w.reflection == "specular" {
-            Reflection::Specular
-        } else {
-            Reflection::BounceBack
-        },
+        reflection: w.reflection,
         bins: w.bins,
         rc: f.cutoff,
-        law: if w.law == "local" {
-            ControlLaw::Local
-        } else {
-            ControlLaw::Gradient
-        },
+        law: w.law,
         gain: w.gain,
         update_every: w.update_every,
         adapt: false,
         target_density: None,
     };
     let mut ext = Walls::new(shape, cfg).map_err(engine_err)?;
-    let mut source = w.initial.clone();
+    let mut source = format!("{:?}", w.initial);
     let mut loaded = false;
     if let Some(file) = &w.force_file {
         let path = base_dir.join(file);
@@ -100,11 +92,15 @@ fn build(
                 source = format!("file {}", path.display());
                 loaded = true;
             } else {
-                source = format!("{} ({} is for another fluid or bin layout)", w.initial, path.display());
+                source = format!(
+                    "{:?} ({} is for another fluid or bin layout)",
+                    w.initial,
+                    path.display()
+                );
             }
         }
     }
-    if !loaded && w.initial == "half-space" {
+    if !loaded && w.initial == InitialWallForce::HalfSpace {
         ext = ext
             .with_profile(&WallForceProfile::half_space(p, f.density, w.bins))
             .map_err(engine_err)?;
@@ -117,7 +113,7 @@ fn build(
 fn adapt(
     sim: &mut Simulation<Walls>,
     s: &WallsSection,
-    f: &WallFluidSection,
+    f: &FluidSection,
     base_dir: &Path,
     ctx: &RunContext,
 ) -> Result<serde_json::Value, RunError> {
@@ -152,7 +148,7 @@ fn adapt(
 /// fluid with the same number of fluid particles.
 fn overhead(
     sim: &mut Simulation<Walls>,
-    f: &WallFluidSection,
+    f: &FluidSection,
     r: &WallRunSection,
     seed: u64,
 ) -> Result<serde_json::Value, RunError> {

@@ -30,15 +30,6 @@ impl Curve {
     }
 }
 
-const COLORS: [(u8, u8, u8); 6] = [
-    (0, 114, 178),
-    (213, 94, 0),
-    (0, 158, 115),
-    (204, 121, 167),
-    (86, 180, 233),
-    (230, 159, 0),
-];
-
 /// D_A and D_T against force for each curve, with Mills et al. (2004) and their error bars.
 pub fn stretching_chart(path: &Path, title: &str, curves: &[Curve]) -> Result<(), hemodpd_io::IoError> {
     let mut series = Vec::new();

@@ -1,6 +1,7 @@
 //! Parsing, overriding and validating scenario files.
 
 use crate::FORMAT_VERSION;
+use hemodpd_engine::walls::{ControlLaw, Reflection};
 use hemodpd_membrane::ReferenceState;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -239,8 +240,10 @@ pub struct FluidSection {
     /// Number density, particles per rc³ (default 3).
     #[serde(default = "f_rho")]
     pub density: f64,
-    /// Box edges, rc (each ≥ 3 rc).
-    pub box_size: [f64; 3],
+    /// Box edges, rc (each ≥ 3 rc). Required by `dpd-fluid`; the wall scenarios size their box
+    /// from `[tube]` or `[plates]` and reject it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub box_size: Option<[f64; 3]>,
     /// Conservative amplitude a (default 25).
     #[serde(default = "f_a")]
     pub a: f64,
@@ -294,38 +297,16 @@ fn w_equil() -> u64 {
 fn w_profile_bins() -> usize {
     16
 }
-fn w_reflection() -> String {
-    "bounce-back".into()
-}
-fn w_law() -> String {
-    "gradient".into()
-}
-fn w_initial() -> String {
-    "zero".into()
-}
 
-/// `[fluid]` of the wall scenarios: as the dpd-fluid `[fluid]` without the box (model units).
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct WallFluidSection {
-    /// Number density, particles per rc³ (default 3).
-    #[serde(default = "f_rho")]
-    pub density: f64,
-    /// Conservative amplitude a (default 25), fluid–fluid and wall–fluid.
-    #[serde(default = "f_a")]
-    pub a: f64,
-    /// Dissipative coefficient γ (default 4.5).
-    #[serde(default = "f_gamma")]
-    pub gamma: f64,
-    /// Thermal energy kBT (default 1).
-    #[serde(default = "one")]
-    pub kbt: f64,
-    /// Cut-off radius (default 1).
-    #[serde(default = "f_cut")]
-    pub cutoff: f64,
-    /// Random-weight exponent s (default 1).
-    #[serde(default = "one")]
-    pub weight_exponent: f64,
+/// Initial near-wall force of the adaptive control, when no saved profile is loaded.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum InitialWallForce {
+    /// Start from zero (the frozen wall particles already supply the repulsion).
+    #[default]
+    Zero,
+    /// The integrated conservative force of a half-space of fluid, πρa(rc − h)³(rc + 3h)/(12 rc).
+    HalfSpace,
 }
 
 /// `[walls]`: reflection and the adaptive near-wall force (docs/walls.md).
@@ -333,14 +314,14 @@ pub struct WallFluidSection {
 #[serde(deny_unknown_fields)]
 pub struct WallsSection {
     /// `"bounce-back"` (default, no slip) or `"specular"`.
-    #[serde(default = "w_reflection")]
-    pub reflection: String,
+    #[serde(default)]
+    pub reflection: Reflection,
     /// Adaptive control on (default true).
     #[serde(default = "yes")]
     pub adaptive: bool,
     /// `"gradient"` (default: F_k += α(e_k − e_{k+1})) or `"local"` (F_k += α e_k).
-    #[serde(default = "w_law")]
-    pub law: String,
+    #[serde(default)]
+    pub law: ControlLaw,
     /// Bins of the near-wall layer 0 ≤ h < rc (default 5).
     #[serde(default = "w_bins")]
     pub bins: usize,
@@ -355,8 +336,8 @@ pub struct WallsSection {
     pub adapt_iterations: u64,
     /// Initial force profile: `"zero"` (default; the frozen wall particles supply the
     /// repulsion) or `"half-space"` (πρa(rc − h)³(rc + 3h)/(12rc)).
-    #[serde(default = "w_initial")]
-    pub initial: String,
+    #[serde(default)]
+    pub initial: InitialWallForce,
     /// A force-profile CSV, relative to the scenario file: read if it exists and matches the
     /// fluid and bins (then used instead of `initial`), written after adaptation.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -414,7 +395,7 @@ pub struct TubeScenario {
     pub format_version: u32,
     pub kind: String,
     pub seed: u64,
-    pub fluid: WallFluidSection,
+    pub fluid: FluidSection,
     pub tube: TubeSection,
     pub walls: WallsSection,
     pub run: WallRunSection,
@@ -442,7 +423,7 @@ pub struct CouetteScenario {
     pub format_version: u32,
     pub kind: String,
     pub seed: u64,
-    pub fluid: WallFluidSection,
+    pub fluid: FluidSection,
     pub plates: PlatesSection,
     pub walls: WallsSection,
     pub run: WallRunSection,
@@ -708,15 +689,15 @@ fn validate_stretching(s: &StretchingScenario, file: &str) -> Result<(), Scenari
 fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
     let c = Check { file };
     let f = &s.fluid;
-    c.range(
-        "fluid.density",
-        f.density,
-        0.1,
-        30.0,
-        "a number density between 0.1 and 30 per rc³ (standard: 3)",
-    )?;
-    c.range("fluid.cutoff", f.cutoff, 0.1, 10.0, "a cut-off between 0.1 and 10")?;
-    for (k, &l) in f.box_size.iter().enumerate() {
+    validate_fluid_params(f, &c)?;
+    let Some(box_size) = f.box_size else {
+        return Err(ScenarioError::Missing {
+            file: file.into(),
+            key: "fluid.box_size".into(),
+            what: "the box edges in rc, e.g. [10.0, 10.0, 10.0]".into(),
+        });
+    };
+    for (k, &l) in box_size.iter().enumerate() {
         c.range(
             &format!("fluid.box_size[{k}]"),
             l,
@@ -725,30 +706,14 @@ fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
             "a box edge of at least 3 cut-offs",
         )?;
     }
-    let n = f.density * f.box_size.iter().product::<f64>();
+    let n = f.density * box_size.iter().product::<f64>();
     if n > 5e8 {
         return Err(c.fail(
             "fluid.box_size",
-            format!("{:?}", f.box_size),
+            format!("{box_size:?}"),
             "a box holding at most 5e8 particles at this density",
         ));
     }
-    c.range("fluid.a", f.a, 0.0, 1e4, "a conservative amplitude between 0 and 1e4")?;
-    c.range(
-        "fluid.gamma",
-        f.gamma,
-        0.0,
-        1e4,
-        "a dissipative coefficient between 0 and 1e4",
-    )?;
-    c.range("fluid.kbt", f.kbt, 1e-6, 1e3, "a thermal energy between 1e-6 and 1e3")?;
-    c.range(
-        "fluid.weight_exponent",
-        f.weight_exponent,
-        0.05,
-        4.0,
-        "an exponent between 0.05 and 4 (1 standard; 0.5, 0.25 for higher Schmidt number)",
-    )?;
     let r = &s.run;
     c.range(
         "run.timestep",
@@ -777,17 +742,8 @@ fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
     Ok(())
 }
 
-fn validate_wall_common(
-    kind: &str,
-    want: &str,
-    f: &WallFluidSection,
-    w: &WallsSection,
-    r: &WallRunSection,
-    c: &Check,
-) -> Result<(), ScenarioError> {
-    if kind != want {
-        return Err(c.fail("kind", kind, &format!("{want:?}")));
-    }
+/// The `[fluid]` parameters every scenario with a DPD fluid shares.
+fn validate_fluid_params(f: &FluidSection, c: &Check) -> Result<(), ScenarioError> {
     c.range(
         "fluid.density",
         f.density,
@@ -795,38 +751,49 @@ fn validate_wall_common(
         30.0,
         "a number density between 0.1 and 30 per rc³ (standard: 3)",
     )?;
+    c.range("fluid.cutoff", f.cutoff, 0.1, 10.0, "a cut-off between 0.1 and 10")?;
     c.range("fluid.a", f.a, 0.0, 1e4, "a conservative amplitude between 0 and 1e4")?;
     c.range(
         "fluid.gamma",
         f.gamma,
-        1e-3,
+        0.0,
         1e4,
-        "a dissipative coefficient between 1e-3 and 1e4 (walls need dissipation)",
+        "a dissipative coefficient between 0 and 1e4",
     )?;
     c.range("fluid.kbt", f.kbt, 1e-6, 1e3, "a thermal energy between 1e-6 and 1e3")?;
-    c.range("fluid.cutoff", f.cutoff, 0.1, 10.0, "a cut-off between 0.1 and 10")?;
     c.range(
         "fluid.weight_exponent",
         f.weight_exponent,
         0.05,
         4.0,
-        "an exponent between 0.05 and 4",
-    )?;
-    if !["bounce-back", "specular"].contains(&w.reflection.as_str()) {
+        "an exponent between 0.05 and 4 (1 standard; 0.5, 0.25 for higher Schmidt number)",
+    )
+}
+
+fn validate_wall_common(
+    kind: &str,
+    want: &str,
+    f: &FluidSection,
+    w: &WallsSection,
+    r: &WallRunSection,
+    c: &Check,
+) -> Result<(), ScenarioError> {
+    if kind != want {
+        return Err(c.fail("kind", kind, &format!("{want:?}")));
+    }
+    validate_fluid_params(f, c)?;
+    if f.gamma <= 0.0 {
         return Err(c.fail(
-            "walls.reflection",
-            format!("{:?}", w.reflection),
-            "\"bounce-back\" or \"specular\"",
+            "fluid.gamma",
+            f.gamma,
+            "a positive dissipative coefficient (walls need dissipation for no slip)",
         ));
     }
-    if !["gradient", "local"].contains(&w.law.as_str()) {
-        return Err(c.fail("walls.law", format!("{:?}", w.law), "\"gradient\" or \"local\""));
-    }
-    if !["zero", "half-space"].contains(&w.initial.as_str()) {
+    if let Some(b) = f.box_size {
         return Err(c.fail(
-            "walls.initial",
-            format!("{:?}", w.initial),
-            "\"zero\" or \"half-space\"",
+            "fluid.box_size",
+            format!("{b:?}"),
+            "no box: the wall scenarios size it from [tube] or [plates]",
         ));
     }
     if w.bins == 0 || w.bins > 100 {

@@ -39,7 +39,11 @@ fn out_err(e: hemodpd_io::IoError) -> RunError {
 
 fn config_and_field(s: &FluidScenario) -> (SimConfig, ForceField) {
     let f = &s.fluid;
-    let mut config = SimConfig::new(DVec3::from_array(f.box_size), s.run.timestep, s.seed);
+    let mut config = SimConfig::new(
+        DVec3::from_array(f.box_size.unwrap_or([0.0; 3])), /* required by validation */
+        s.run.timestep,
+        s.seed,
+    );
     config.lambda = s.run.lambda;
     let field = ForceField::single(PairParams {
         a: f.a,
