@@ -564,6 +564,7 @@ fn apply_set(table: &mut toml::Table, assignment: &str) -> Result<(), ScenarioEr
     Ok(())
 }
 
+#[derive(Clone, Copy)]
 struct Check<'a> {
     file: &'a str,
 }
@@ -715,27 +716,40 @@ fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
         ));
     }
     let r = &s.run;
+    validate_stepping(c, r.timestep, 0.2, r.lambda, r.steps, r.sample_every)?;
+    Ok(())
+}
+
+/// `[run]` keys every time-stepping scenario shares: Δt up to `max_dt`, λ, steps, sampling.
+fn validate_stepping(
+    c: Check,
+    dt: f64,
+    max_dt: f64,
+    lambda: f64,
+    steps: u64,
+    sample_every: u64,
+) -> Result<(), ScenarioError> {
     c.range(
         "run.timestep",
-        r.timestep,
+        dt,
         1e-6,
-        0.2,
-        "a time step between 1e-6 and 0.2 (standard: 0.01)",
+        max_dt,
+        &format!("a time step between 1e-6 and {max_dt} (standard: 0.01)"),
     )?;
     c.range(
         "run.lambda",
-        r.lambda,
+        lambda,
         0.0,
         1.0,
         "a Groot–Warren λ between 0 and 1 (0.5 standard)",
     )?;
-    if r.steps == 0 {
+    if steps == 0 {
         return Err(c.fail("run.steps", 0, "a positive number of steps"));
     }
-    if r.sample_every == 0 || r.sample_every > r.steps {
+    if sample_every == 0 || sample_every > steps {
         return Err(c.fail(
             "run.sample_every",
-            r.sample_every,
+            sample_every,
             "a positive interval no longer than run.steps",
         ));
     }
@@ -809,30 +823,7 @@ fn validate_wall_common(
     if w.update_every == 0 {
         return Err(c.fail("walls.update_every", 0, "a positive number of steps"));
     }
-    c.range(
-        "run.timestep",
-        r.timestep,
-        1e-6,
-        0.05,
-        "a time step between 1e-6 and 0.05 (standard: 0.01)",
-    )?;
-    c.range(
-        "run.lambda",
-        r.lambda,
-        0.0,
-        1.0,
-        "a Groot–Warren λ between 0 and 1 (0.5 standard)",
-    )?;
-    if r.steps == 0 {
-        return Err(c.fail("run.steps", 0, "a positive number of steps"));
-    }
-    if r.sample_every == 0 || r.sample_every > r.steps {
-        return Err(c.fail(
-            "run.sample_every",
-            r.sample_every,
-            "a positive interval no longer than run.steps",
-        ));
-    }
+    validate_stepping(*c, r.timestep, 0.05, r.lambda, r.steps, r.sample_every)?;
     if r.profile_bins < 2 || r.profile_bins > 1000 {
         return Err(c.fail("run.profile_bins", r.profile_bins, "an integer from 2 to 1000"));
     }
