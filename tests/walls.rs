@@ -127,19 +127,7 @@ fn radius_of(s: &WallShape) -> f64 {
     }
 }
 
-/// Weighted least squares y = c0 + c1·x (weights w): (c0, c1).
-fn fit_line(x: &[f64], y: &[f64], w: &[f64]) -> (f64, f64) {
-    let (mut s, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for i in 0..x.len() {
-        s += w[i];
-        sx += w[i] * x[i];
-        sy += w[i] * y[i];
-        sxx += w[i] * x[i] * x[i];
-        sxy += w[i] * x[i] * y[i];
-    }
-    let c1 = (s * sxy - sx * sy) / (s * sxx - sx * sx);
-    ((sy - c1 * sx) / s, c1)
-}
+use hemodpd_scenario::channel::fit_line;
 
 /// Adapts the near-wall force for `updates` periods (with the flow on) and returns the history.
 fn adapt(sim: &mut Simulation<Walls>, updates: u64) -> Vec<AdaptRecord> {

@@ -29,8 +29,8 @@ fn pair(f: &FluidSection) -> PairParams {
     }
 }
 
-/// Weighted least squares y = c0 + c1 x.
-fn fit_line(x: &[f64], y: &[f64], w: &[f64]) -> (f64, f64) {
+/// Weighted least squares y = c0 + c1 x (weights w): returns (c0, c1).
+pub fn fit_line(x: &[f64], y: &[f64], w: &[f64]) -> (f64, f64) {
     let (mut s, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for i in 0..x.len() {
         s += w[i];
