@@ -672,20 +672,29 @@ impl MembraneModel {
     pub fn area_volume(&self, x: &[DVec3]) -> Result<(f64, f64), ForceError> {
         let origin = x[0];
         let (mut area, mut vol6) = (0.0, 0.0);
-        for (t, tri) in self.triangles.iter().enumerate() {
-            let [a, b, c] = tri.map(|v| x[v as usize] - origin);
-            let at = 0.5 * (b - a).cross(c - a).length();
-            if !(at > self.tri_amin[t]) {
-                return Err(ForceError::DegenerateTriangle {
-                    triangle: t,
-                    vertices: *tri,
-                    area: at,
-                });
-            }
+        for t in 0..self.triangles.len() {
+            let (at, v6) = self.triangle_area_vol6(t, x, origin)?;
             area += at;
-            vol6 += a.dot(b.cross(c));
+            vol6 += v6;
         }
         Ok((area, vol6 / 6.0))
+    }
+
+    /// Area of triangle `t` and 6 × the signed volume of its tetrahedron with `origin`; a
+    /// triangle below its degenerate-area threshold is an error.
+    #[inline]
+    pub(crate) fn triangle_area_vol6(&self, t: usize, x: &[DVec3], origin: DVec3) -> Result<(f64, f64), ForceError> {
+        let tri = &self.triangles[t];
+        let [a, b, c] = tri.map(|v| x[v as usize] - origin);
+        let at = 0.5 * (b - a).cross(c - a).length();
+        if !(at > self.tri_amin[t]) {
+            return Err(ForceError::DegenerateTriangle {
+                triangle: t,
+                vertices: *tri,
+                area: at,
+            });
+        }
+        Ok((at, a.dot(b.cross(c))))
     }
 
     fn overstretched(&self, i: usize, length: f64) -> ForceError {

@@ -126,19 +126,10 @@ impl MembraneModel {
                 .enumerate()
                 .map(|(ci, tris)| {
                     let (mut a_sum, mut v_sum) = (0.0, 0.0);
-                    for (j, tri) in tris.iter().enumerate() {
-                        let t = ci * CHUNK + j;
-                        let [a, b, c] = tri.map(|v| x[v as usize] - origin);
-                        let at = 0.5 * (b - a).cross(c - a).length();
-                        if !(at > self.tri_amin[t]) {
-                            return Err(ForceError::DegenerateTriangle {
-                                triangle: t,
-                                vertices: *tri,
-                                area: at,
-                            });
-                        }
+                    for j in 0..tris.len() {
+                        let (at, v6) = self.triangle_area_vol6(ci * CHUNK + j, x, origin)?;
                         a_sum += at;
-                        v_sum += a.dot(b.cross(c));
+                        v_sum += v6;
                     }
                     Ok((a_sum, v_sum))
                 })
