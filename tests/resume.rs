@@ -195,3 +195,94 @@ fn ctrl_c_checkpoints_and_resumes() {
     assert!(sb["results"]["resumed_from_step"].as_u64().unwrap() > 0);
     assert_eq!(frames(a.path()).0, frames(b.path()).0);
 }
+
+/// A small wall scenario with its force file in `dir` (so runs do not share one).
+fn small_walled(file: &str, dir: &Path, sets: &[&str]) -> Scenario {
+    let force_file = format!(
+        "walls.force_file={:?}",
+        dir.join("wall_force_profile.csv").to_str().unwrap()
+    );
+    let mut all = vec![
+        "walls.update_every=50",
+        "walls.adapt_iterations=2",
+        "run.equilibration_steps=50",
+        "run.flow_steps=50",
+        "run.steps=200",
+        "run.sample_every=5",
+        "run.measure_overhead=false",
+        "output.trajectory_every_steps=50",
+        "output.checkpoint_every_steps=60",
+        force_file.as_str(),
+    ];
+    all.extend_from_slice(sets);
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(file);
+    hemodpd_scenario::load(&path, &all.iter().map(|s| s.to_string()).collect::<Vec<_>>()).unwrap()
+}
+
+/// Wall scenarios resume bit-identically: a tube run interrupted in the adaptation phase
+/// (step 73) and again while sampling (step 237), resumed each time on another thread count,
+/// ends with the uninterrupted run's particles, wall forces, adaptation history, profile and
+/// viscosity to the last bit, and the same trajectory frames; a Couette run interrupted while
+/// sampling gives the same wall stress and viscosity.
+#[test]
+fn wall_scenarios_resume_bit_identically() {
+    let cases: [(&str, &[&str], &[u64], &str); 2] = [
+        (
+            "poiseuille-tube.toml",
+            &["tube.radius=2.5", "tube.length=4.0", "tube.body_force=0.2"],
+            &[73, 237],
+            "viscosity",
+        ),
+        (
+            "couette.toml",
+            &["plates.gap=4.0", "plates.width=[4.0, 4.0]", "plates.wall_speed=1.0"],
+            &[211],
+            "viscosity",
+        ),
+    ];
+    for (file, sets, stops, key) in cases {
+        let a = tempfile::tempdir().unwrap();
+        let s = small_walled(file, a.path(), sets);
+        let full = in_pool(1, || hemodpd_scenario::run(&s, &RunContext::new(a.path(), 1, false))).unwrap();
+        let b = tempfile::tempdir().unwrap();
+        let s = small_walled(file, b.path(), sets);
+        let mut ctx = RunContext::new(b.path(), 1, false);
+        ctx.stop_at_step = Some(stops[0]);
+        match in_pool(1, || hemodpd_scenario::run(&s, &ctx)) {
+            Err(RunError::Interrupted { step, .. }) if step == stops[0] => {}
+            other => panic!("{file}: expected an interrupt at step {}, got {other:?}", stops[0]),
+        }
+        let mut resumed = None;
+        for (k, &stop) in stops.iter().enumerate() {
+            let mut ctx = RunContext::new(b.path(), 2 - k % 2, false);
+            ctx.stop_at_step = stops.get(k + 1).copied();
+            match in_pool(2 - k % 2, || hemodpd_scenario::resume(b.path(), &ctx)) {
+                Ok((_, r)) => resumed = Some(r),
+                Err(RunError::Interrupted { step, .. }) if Some(step) == ctx.stop_at_step => {}
+                Err(e) => panic!("{file}: resume from {stop}: {e}"),
+            }
+        }
+        let resumed = resumed.unwrap();
+        assert_eq!(resumed["resumed_from_step"].as_u64(), stops.last().copied());
+        let bits = |v: &serde_json::Value| v.as_f64().unwrap().to_bits();
+        assert_eq!(bits(&full[key]["value"]), bits(&resumed[key]["value"]), "{file}: {key}");
+        assert_eq!(full["adaptation"], resumed["adaptation"], "{file}: adaptation history");
+        assert_eq!(full["profile"], resumed["profile"], "{file}: sampled profile");
+        assert_eq!(full["near_wall"], resumed["near_wall"], "{file}: near-wall density");
+        assert_eq!(full["reflections"], resumed["reflections"], "{file}: reflections");
+        assert!(full["reflections"].as_u64().unwrap() > 0);
+        let (pa, va) = final_arrays(a.path());
+        let (pb, vb) = final_arrays(b.path());
+        assert!(pa == pb && va == vb, "{file}: final state differs");
+        let expected: Vec<u64> = (0..=7).map(|k| 50 * k).collect();
+        assert_eq!(frames(a.path()).0, expected, "{file}");
+        assert_eq!(
+            frames(b.path()).0,
+            expected,
+            "{file}: frames lost or duplicated by the resume"
+        );
+        // the force file was written after adaptation, in each run's own directory
+        assert!(a.path().join("wall_force_profile.csv").exists());
+        assert!(b.path().join("wall_force_profile.csv").exists());
+    }
+}

@@ -590,6 +590,32 @@ pub struct AdaptRecord {
     pub forces: Vec<Real>,
 }
 
+/// Everything of a [`Walls`] that changes during a run: saved in checkpoints so that a resumed
+/// run continues bit-identically ([`Walls::state`], [`Walls::with_state`]). The geometry and the
+/// settings other than the adaptation switch come from the scenario.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WallsState {
+    /// F_k, force units, one per bin.
+    pub forces: Vec<Real>,
+    /// Adaptation on.
+    pub adapt: bool,
+    /// Density sampling on.
+    pub sampling: bool,
+    /// Counts per bin of the current update period, and the steps it holds.
+    pub period_counts: Vec<u64>,
+    pub period_samples: u64,
+    /// Counts per bin since the last [`Walls::reset_measurements`], and the steps they hold.
+    pub total_counts: Vec<u64>,
+    pub total_samples: u64,
+    /// Target density ρ0 (fixed at the first step).
+    pub target_density: Option<Real>,
+    /// Reflections and impulse per surface since the last reset.
+    pub reflections: u64,
+    pub impulse: Vec<[Real; 3]>,
+    /// Adaptation history.
+    pub history: Vec<AdaptRecord>,
+}
+
 /// The wall extension: reflection, adaptive near-wall force, near-wall density sampling.
 #[derive(Debug, Clone)]
 pub struct Walls {
@@ -666,6 +692,67 @@ impl Walls {
             ));
         }
         self.forces = profile.forces.clone();
+        Ok(self)
+    }
+
+    /// The run-time state, for a checkpoint.
+    pub fn state(&self) -> WallsState {
+        WallsState {
+            forces: self.forces.clone(),
+            adapt: self.config.adapt,
+            sampling: self.sampling,
+            period_counts: self.counts.clone(),
+            period_samples: self.samples,
+            total_counts: self.total_counts.clone(),
+            total_samples: self.total_samples,
+            target_density: self.rho0,
+            reflections: self.reflections,
+            impulse: self.impulse.iter().map(|p| p.to_array()).collect(),
+            history: self.history.clone(),
+        }
+    }
+
+    /// Continues from a saved state (its bin and surface counts must match these walls).
+    pub fn with_state(mut self, state: WallsState) -> Result<Self, EngineError> {
+        let nb = self.config.bins;
+        if state.forces.len() != nb || state.period_counts.len() != nb || state.total_counts.len() != nb {
+            return Err(EngineError::invalid(
+                "saved wall state",
+                format!(
+                    "{}/{}/{} bins, the walls have {nb}",
+                    state.forces.len(),
+                    state.period_counts.len(),
+                    state.total_counts.len()
+                ),
+            ));
+        }
+        if state.impulse.len() != self.shape.sides() {
+            return Err(EngineError::invalid(
+                "saved wall state",
+                format!(
+                    "{} surfaces, the walls have {}",
+                    state.impulse.len(),
+                    self.shape.sides()
+                ),
+            ));
+        }
+        if state.forces.iter().any(|f| !f.is_finite()) || state.target_density.is_some_and(|r| r.is_nan() || r <= 0.0) {
+            return Err(EngineError::invalid(
+                "saved wall state",
+                "non-finite force or non-positive target density",
+            ));
+        }
+        self.forces = state.forces;
+        self.config.adapt = state.adapt;
+        self.sampling = state.sampling;
+        self.counts = state.period_counts;
+        self.samples = state.period_samples;
+        self.total_counts = state.total_counts;
+        self.total_samples = state.total_samples;
+        self.rho0 = state.target_density;
+        self.reflections = state.reflections;
+        self.impulse = state.impulse.into_iter().map(DVec3::from_array).collect();
+        self.history = state.history;
         Ok(self)
     }
 

@@ -2,18 +2,48 @@
 //! `kind = "poiseuille-tube"` (body-force-driven flow in a tube, against the parabola) and
 //! `kind = "couette"` (plates moving at ±U, against the line; viscosity from the wall stress).
 //!
-//! Both: cut the walls out of an equilibrated fluid, adapt the near-wall force with the flow on
-//! (or load a saved profile), let the flow develop, sample the profiles, fit, and time the same
-//! number of fluid particles in a periodic box for the wall overhead.
+//! Both cut the walls out of an equilibrated fluid, then run one stepped schedule:
+//!
+//! | steps | phase |
+//! |---|---|
+//! | `[0, A)` | adaptation of the near-wall force with the flow on (A = adapt_iterations × update_every, 0 when not adaptive) |
+//! | `[A, A + F)` | flow development, not sampled (F = `run.flow_steps`) |
+//! | `[A + F, A + F + S)` | sampling (S = `run.steps`), split into [`BLOCKS`] blocks for standard errors |
+//!
+//! then fit, and time the same number of fluid particles in a periodic box for the wall overhead.
+//! The force profile is written when adaptation ends. Frames go to `trajectory.h5` every
+//! `output.trajectory_every_steps` steps; `checkpoint.h5` (particles, the wall state and the
+//! sums sampled so far) is written every `output.checkpoint_every_steps` steps, at the end and on
+//! Ctrl-C, and `hemodpd run --resume DIR` continues bit-identically.
 
-use crate::file::{CouetteScenario, FluidSection, InitialWallForce, TubeScenario, WallRunSection, WallsSection};
+use crate::file::{
+    CouetteScenario, FluidSection, InitialWallForce, TubeScenario, WallOutput, WallRunSection, WallsSection,
+};
+use crate::fluid::{out_err, particles_from_checkpoint, particles_into_checkpoint, CHECKPOINT_FILE, TRAJECTORY_FILE};
 use crate::{RunContext, RunError};
 use glam::DVec3;
-use hemodpd_engine::walls::{self, WallConfig, WallForceProfile, WallSetup, WallShape, Walls};
-use hemodpd_engine::{init, observe, ForceField, PairParams, SimConfig, Simulation};
+use hemodpd_engine::walls::{self, WallConfig, WallForceProfile, WallSetup, WallShape, Walls, WallsState};
+use hemodpd_engine::{init, observe, ForceField, PairParams, SimConfig, SimState, Simulation};
+use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
+use hemodpd_io::{RunMetadata, TrajectoryWriter};
+use serde::{Deserialize, Serialize};
 use serde_json::json;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
 use std::time::Instant;
+
+/// Blocks the sampled steps are split into; the standard errors of the fitted viscosity and of
+/// the wall stress come from the scatter between blocks.
+pub const BLOCKS: usize = 10;
+
+/// Radial bins within this many cut-offs of the tube wall are left out of the viscosity fit.
+/// DPD's stress at r comes from pairs within rc of r, and the fluid's structure is perturbed
+/// up to about rc from the wall, so the bulk relation σ = η γ̇ holds for r < R − 2rc
+/// (docs/walls.md, "Tube viscosity").
+pub const INTERIOR_MARGIN_RC: f64 = 2.0;
+
+/// Fewest radial bins the interior fit needs; with fewer the viscosity is not reported.
+const MIN_INTERIOR_BINS: usize = 3;
 
 fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
     RunError::Engine(e.to_string())
@@ -43,43 +73,177 @@ pub fn fit_line(x: &[f64], y: &[f64], w: &[f64]) -> (f64, f64) {
     ((sy - c1 * sx) / s, c1)
 }
 
-/// Builds the walled simulation; loads the force file if it matches. Returns the simulation and
-/// where the profile came from.
-fn build(
+/// Mean and standard error of the mean of independent values (NaN when fewer than two).
+fn mean_se(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let m = v.iter().sum::<f64>() / n;
+    if v.len() < 2 {
+        return (m, f64::NAN);
+    }
+    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0);
+    (m, (var / n).sqrt())
+}
+
+/// Per-block sums of a profile across the channel: particle counts and the flow-direction
+/// velocity, per bin.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ProfileSums {
+    /// `count[block][bin]`.
+    pub count: Vec<Vec<f64>>,
+    /// `velocity[block][bin]`: Σ of the velocity component along the flow.
+    pub velocity: Vec<Vec<f64>>,
+    /// Samples per block.
+    pub samples: Vec<u64>,
+}
+
+impl ProfileSums {
+    fn new(bins: usize) -> Self {
+        Self {
+            count: vec![vec![0.0; bins]; BLOCKS],
+            velocity: vec![vec![0.0; bins]; BLOCKS],
+            samples: vec![0; BLOCKS],
+        }
+    }
+
+    /// (counts, mean velocity) over the blocks in `blocks`.
+    fn mean(&self, blocks: std::ops::Range<usize>) -> (Vec<f64>, Vec<f64>) {
+        let nb = self.count[0].len();
+        let (mut c, mut v) = (vec![0.0; nb], vec![0.0; nb]);
+        for b in blocks {
+            for k in 0..nb {
+                c[k] += self.count[b][k];
+                v[k] += self.velocity[b][k];
+            }
+        }
+        let v = v.iter().zip(&c).map(|(v, c)| v / c.max(1.0)).collect();
+        (c, v)
+    }
+
+    fn total_samples(&self) -> u64 {
+        self.samples.iter().sum()
+    }
+}
+
+/// What a walled run accumulates while sampling; saved in checkpoints.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Measurement {
+    /// Velocity and density profile across the channel.
+    pub profile: ProfileSums,
+    /// Couette: the wall shear stress at every sampled step.
+    pub stress: Vec<f64>,
+    /// Couette: the reflection impulse along x of each plate at the last step.
+    pub impulse_prev: [f64; 2],
+    /// Wall-clock seconds of the stepping so far (over all sessions of a resumed run).
+    pub stepping_seconds: f64,
+}
+
+/// The geometry a walled run measures in.
+#[derive(Clone, Copy, Debug)]
+enum Channel {
+    /// Tube of radius `radius` along z, length `length`, body force `g` along z.
+    Tube { radius: f64, length: f64, g: f64 },
+    /// Plates at z = `lower` and `lower + gap`, moving at ∓`speed` along x; `area` = Lx·Ly.
+    Couette {
+        lower: f64,
+        gap: f64,
+        speed: f64,
+        area: f64,
+    },
+}
+
+/// Everything one walled run needs, from either scenario kind.
+struct Plan<'a> {
+    kind: &'static str,
+    toml: String,
+    seed: u64,
+    fluid: &'a FluidSection,
+    walls: &'a WallsSection,
+    run: &'a WallRunSection,
+    output: &'a WallOutput,
+    base_dir: &'a Path,
     shape: WallShape,
     box_lengths: DVec3,
-    f: &FluidSection,
-    w: &WallsSection,
-    r: &WallRunSection,
-    seed: u64,
-    base_dir: &Path,
-) -> Result<(Simulation<Walls>, String), RunError> {
-    let mut config = SimConfig::new(box_lengths, r.timestep, seed);
-    config.lambda = r.lambda;
+    channel: Channel,
+    /// µm per rc, for reporting lengths in µm too.
+    length_scale_um_per_rc: Option<f64>,
+}
+
+impl Plan<'_> {
+    /// Steps of adaptation A.
+    fn adapt_steps(&self) -> u64 {
+        if self.walls.adaptive {
+            self.walls.adapt_iterations * self.walls.update_every
+        } else {
+            0
+        }
+    }
+    /// First sampled step A + F.
+    fn sampling_start(&self) -> u64 {
+        self.adapt_steps() + self.run.flow_steps
+    }
+    /// All steps A + F + S.
+    fn total(&self) -> u64 {
+        self.sampling_start() + self.run.steps
+    }
+    fn body_force(&self) -> DVec3 {
+        match self.channel {
+            Channel::Tube { g, .. } => DVec3::new(0.0, 0.0, g),
+            Channel::Couette { .. } => DVec3::ZERO,
+        }
+    }
+    fn config(&self) -> SimConfig {
+        let mut config = SimConfig::new(self.box_lengths, self.run.timestep, self.seed);
+        config.lambda = self.run.lambda;
+        config
+    }
+    fn wall_config(&self) -> WallConfig {
+        let w = self.walls;
+        WallConfig {
+            reflection: w.reflection,
+            bins: w.bins,
+            rc: self.fluid.cutoff,
+            law: w.law,
+            gain: w.gain,
+            update_every: w.update_every,
+            adapt: false,
+            target_density: None,
+        }
+    }
+    fn frame_due(&self, step: u64) -> bool {
+        let every = self.output.trajectory_every_steps;
+        every > 0 && step % every == 0
+    }
+    /// The profile bin of a fluid particle at `x`, if inside the profiled region.
+    #[inline]
+    fn bin(&self, x: DVec3) -> Option<usize> {
+        let nb = self.run.profile_bins;
+        let k = match self.channel {
+            Channel::Tube { radius, .. } => (self.shape.signed_distance(x) + radius) / radius * nb as f64,
+            Channel::Couette { lower, gap, .. } => (x.z - lower) / gap * nb as f64,
+        };
+        (k >= 0.0).then(|| (k as usize).min(nb - 1))
+    }
+}
+
+/// Builds the walled simulation at step 0; loads the force file if it matches. Returns the
+/// simulation and where the profile came from.
+fn build(plan: &Plan) -> Result<(Simulation<Walls>, String), RunError> {
+    let (f, w) = (plan.fluid, plan.walls);
+    let config = plan.config();
     let p = pair(f);
     let setup = WallSetup {
-        shape,
+        shape: plan.shape,
         pair: p,
         density: f.density,
         thickness: f.cutoff,
-        equilibration_steps: r.equilibration_steps,
+        equilibration_steps: plan.run.equilibration_steps,
     };
-    let (field, particles) = walls::build(&config, &setup, seed).map_err(engine_err)?;
-    let cfg = WallConfig {
-        reflection: w.reflection,
-        bins: w.bins,
-        rc: f.cutoff,
-        law: w.law,
-        gain: w.gain,
-        update_every: w.update_every,
-        adapt: false,
-        target_density: None,
-    };
-    let mut ext = Walls::new(shape, cfg).map_err(engine_err)?;
+    let (field, particles) = walls::build(&config, &setup, plan.seed).map_err(engine_err)?;
+    let mut ext = Walls::new(plan.shape, plan.wall_config()).map_err(engine_err)?;
     let mut source = format!("{:?}", w.initial);
     let mut loaded = false;
     if let Some(file) = &w.force_file {
-        let path = base_dir.join(file);
+        let path = plan.base_dir.join(file);
         if path.exists() {
             let text = std::fs::read_to_string(&path).map_err(|source| RunError::Io {
                 path: path.clone(),
@@ -105,53 +269,263 @@ fn build(
             .with_profile(&WallForceProfile::half_space(p, f.density, w.bins))
             .map_err(engine_err)?;
     }
-    let sim = Simulation::with_extension(config, field, particles, ext).map_err(engine_err)?;
+    let mut sim = Simulation::with_extension(config, field, particles, ext).map_err(engine_err)?;
+    sim.set_body_force(walls::FLUID_TYPE as usize, plan.body_force())
+        .map_err(engine_err)?;
     Ok((sim, source))
 }
 
-/// Adaptation (flow on), then the force file is written. Returns the convergence table.
-fn adapt(
-    sim: &mut Simulation<Walls>,
-    s: &WallsSection,
-    f: &FluidSection,
-    base_dir: &Path,
+fn json_into_checkpoint<T: Serialize>(ck: &mut Checkpoint, name: &str, value: &T) -> Result<(), RunError> {
+    let bytes = serde_json::to_vec(value).map_err(|e| RunError::Output(format!("checkpoint {name}: {e}")))?;
+    ck.insert_u8(name, bytes);
+    Ok(())
+}
+
+fn json_from_checkpoint<T: for<'de> Deserialize<'de>>(ck: &Checkpoint, name: &str) -> Result<T, RunError> {
+    let bytes = ck.u8s(name).map_err(|e| RunError::Output(format!("checkpoint: {e}")))?;
+    serde_json::from_slice(bytes).map_err(|e| RunError::Output(format!("checkpoint {name}: {e}")))
+}
+
+fn save_checkpoint(
+    plan: &Plan,
     ctx: &RunContext,
-) -> Result<serde_json::Value, RunError> {
-    if s.adaptive && s.adapt_iterations > 0 {
-        sim.extension_mut().set_adapt(true);
-        sim.run(s.adapt_iterations * s.update_every).map_err(engine_err)?;
-        sim.extension_mut().set_adapt(false);
+    sim: &Simulation<Walls>,
+    m: &Measurement,
+    source: &str,
+) -> Result<(), RunError> {
+    let mut ck = Checkpoint::new(sim.step_count(), sim.time(), plan.seed, plan.toml.clone());
+    ck.set_scalar("scenario_kind", ScalarValue::Str(plan.kind.into()));
+    ck.set_scalar(
+        "base_dir",
+        ScalarValue::Str(plan.base_dir.to_string_lossy().into_owned()),
+    );
+    ck.set_scalar("wall_force_source", ScalarValue::Str(source.into()));
+    particles_into_checkpoint(&mut ck, sim.particles());
+    json_into_checkpoint(&mut ck, "walls_state_json", &sim.extension().state())?;
+    json_into_checkpoint(&mut ck, "measurement_json", m)?;
+    ck.save_atomic(ctx.out_dir.join(CHECKPOINT_FILE)).map_err(out_err)
+}
+
+fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(Simulation<Walls>, Measurement, String), RunError> {
+    let kind = ck
+        .scalar_str("scenario_kind")
+        .map_err(|e| RunError::Output(format!("checkpoint: {e}")))?;
+    if kind != plan.kind {
+        return Err(RunError::Output(format!(
+            "checkpoint of a {kind} run, not {}",
+            plan.kind
+        )));
     }
-    let prof = sim.extension().profile(pair(f), f.density);
+    let particles = particles_from_checkpoint(ck)?;
+    let field = walls::wall_field(pair(plan.fluid)).map_err(engine_err)?;
+    let state = SimState {
+        config: plan.config(),
+        field,
+        particles,
+        step: ck.step,
+    };
+    let ws: WallsState = json_from_checkpoint(ck, "walls_state_json")?;
+    let ext = Walls::new(plan.shape, plan.wall_config())
+        .and_then(|w| w.with_state(ws))
+        .map_err(engine_err)?;
+    let mut sim = Simulation::from_state(state, ext).map_err(engine_err)?;
+    sim.set_body_force(walls::FLUID_TYPE as usize, plan.body_force())
+        .map_err(engine_err)?;
+    let m: Measurement = json_from_checkpoint(ck, "measurement_json")?;
+    if m.profile.count.len() != BLOCKS || m.profile.count.iter().any(|c| c.len() != plan.run.profile_bins) {
+        return Err(RunError::Output(
+            "checkpoint: the sampled profile does not match run.profile_bins".into(),
+        ));
+    }
+    let source = ck
+        .scalar_str("wall_force_source")
+        .map_err(|e| RunError::Output(format!("checkpoint: {e}")))?
+        .to_string();
+    Ok((sim, m, source))
+}
+
+fn write_frame(plan: &Plan, w: &mut TrajectoryWriter, sim: &Simulation<Walls>) -> Result<(), RunError> {
+    let p = sim.particles();
+    let stride = plan.output.particle_stride as usize;
+    let pos: Vec<DVec3> = p.pos.iter().step_by(stride).copied().collect();
+    let vel: Vec<DVec3> = p.vel.iter().step_by(stride).copied().collect();
+    let types: Vec<u8> = p.ptype.iter().step_by(stride).map(|&t| t as u8).collect();
+    w.append_fluid_frame(sim.step_count(), sim.time(), &pos, Some(&vel), Some(&types))
+        .map_err(out_err)
+}
+
+/// Writes the force profile (run directory, and the scenario's force file after adaptation).
+fn write_force_files(plan: &Plan, sim: &Simulation<Walls>, ctx: &RunContext) -> Result<(), RunError> {
+    let prof = sim.extension().profile(pair(plan.fluid), plan.fluid.density);
     let csv = prof.to_csv();
     let mut paths = vec![ctx.out_dir.join("wall_force.csv")];
-    if let Some(file) = &s.force_file {
-        if s.adaptive {
-            paths.push(base_dir.join(file));
-        }
+    if let (Some(file), true) = (&plan.walls.force_file, plan.adapt_steps() > 0) {
+        paths.push(plan.base_dir.join(file));
     }
     for path in paths {
         std::fs::write(&path, &csv).map_err(|source| RunError::Io { path, source })?;
     }
-    let table: Vec<_> = sim
-        .extension()
-        .history()
-        .iter()
-        .map(|h| json!({"iteration": h.iteration, "step": h.step, "max_density_deviation": h.max_deviation, "relative_density": h.relative_density, "forces": h.forces}))
-        .collect();
-    Ok(
-        json!({ "iterations": table, "final_forces": sim.extension().forces(), "bin_centres": sim.extension().bin_centres() }),
-    )
+    Ok(())
+}
+
+/// Samples after a step of the sampling phase (`i` steps of it done before this one).
+fn sample(plan: &Plan, sim: &Simulation<Walls>, m: &mut Measurement, i: u64) {
+    let r = plan.run;
+    let block = ((i * BLOCKS as u64) / r.steps) as usize;
+    let p = sim.particles();
+    let profile = i % r.sample_every == 0;
+    let dir = match plan.channel {
+        Channel::Tube { .. } => 2,
+        Channel::Couette { .. } => 0,
+    };
+    let mut fw = [0.0f64; 2];
+    let couette = matches!(plan.channel, Channel::Couette { .. });
+    for k in 0..p.len() {
+        if p.ptype[k] == walls::FLUID_TYPE {
+            if profile {
+                if let Some(b) = plan.bin(p.pos[k]) {
+                    m.profile.count[block][b] += 1.0;
+                    m.profile.velocity[block][b] += p.vel[k][dir];
+                }
+            }
+        } else if couette {
+            fw[plan.shape.side(p.pos[k])] += p.force[k].x;
+        }
+    }
+    if profile {
+        m.profile.samples[block] += 1;
+    }
+    if let Channel::Couette { area, .. } = plan.channel {
+        // shear stress on the fluid: pair forces on the wall particles plus the momentum the
+        // reflections gave each plate this step
+        let imp = sim.extension().impulse();
+        for k in 0..2 {
+            fw[k] += (imp[k].x - m.impulse_prev[k]) / r.timestep;
+            m.impulse_prev[k] = imp[k].x;
+        }
+        m.stress.push((fw[0] - fw[1]) / (2.0 * area));
+    }
+}
+
+/// Runs the schedule from step 0 or from a checkpoint; returns the simulation after the last
+/// step, the sampled sums and the force-profile source.
+fn drive(
+    plan: &Plan,
+    ctx: &RunContext,
+    checkpoint: Option<&Checkpoint>,
+) -> Result<(Simulation<Walls>, Measurement, String), RunError> {
+    let (mut sim, mut m, source) = match checkpoint {
+        Some(ck) => restore(plan, ck)?,
+        None => {
+            let (sim, source) = build(plan)?;
+            let m = Measurement {
+                profile: ProfileSums::new(plan.run.profile_bins),
+                stress: Vec::new(),
+                impulse_prev: [0.0; 2],
+                stepping_seconds: 0.0,
+            };
+            (sim, m, source)
+        }
+    };
+    let (adapt_end, sample_start, total) = (plan.adapt_steps(), plan.sampling_start(), plan.total());
+    let start = sim.step_count();
+    if start > total {
+        return Err(RunError::Output(format!(
+            "checkpoint at step {start} is past the end of the run ({total} steps)"
+        )));
+    }
+    let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
+    let every = plan.output.trajectory_every_steps;
+    // frames are due at multiples of `every` (none when it is 0)
+    let mut traj = match start.checked_div(every) {
+        None => None,
+        Some(scheduled) => Some(match checkpoint {
+            // keep the frames up to the checkpoint; drop an off-schedule final frame of an interrupt
+            Some(_) if traj_path.exists() => {
+                TrajectoryWriter::open_append(&traj_path, scheduled * every).map_err(out_err)?
+            }
+            _ => {
+                let mut meta = RunMetadata::new(plan.kind, plan.toml.clone(), plan.seed, crate::fluid::model_units());
+                meta.extra.push((
+                    "particle_types".into(),
+                    hemodpd_io::MetaValue::Str("0 = fluid, 1 = frozen wall".into()),
+                ));
+                TrajectoryWriter::create(&traj_path, &meta).map_err(out_err)?
+            }
+        }),
+    };
+    let mut progress = ctx.progress(total, start);
+    let report_every = (total / 200).max(1);
+    let mut clock = Instant::now();
+    let mut step = start;
+    loop {
+        // `step` steps are done. Phase changes first (each is idempotent, so a run resumed at
+        // a phase boundary repeats it harmlessly), then frames, checkpoints and interrupts.
+        if step == 0 && adapt_end > 0 {
+            sim.extension_mut().set_adapt(true);
+        }
+        if step == adapt_end {
+            if adapt_end > 0 {
+                sim.extension_mut().set_adapt(false);
+            }
+            write_force_files(plan, &sim, ctx)?;
+        }
+        if step == sample_start {
+            sim.extension_mut().reset_measurements();
+        }
+        if step > start || checkpoint.is_none() {
+            if let Some(w) = traj.as_mut() {
+                if plan.frame_due(step) {
+                    write_frame(plan, w, &sim)?;
+                }
+            }
+            let ck_every = plan.output.checkpoint_every_steps;
+            if ck_every > 0 && step > start && step % ck_every == 0 && step < total {
+                m.stepping_seconds += clock.elapsed().as_secs_f64();
+                clock = Instant::now();
+                save_checkpoint(plan, ctx, &sim, &m, &source)?;
+            }
+        }
+        if step == total {
+            break;
+        }
+        if crate::INTERRUPTED.load(Ordering::Relaxed) || ctx.stop_at_step == Some(step) {
+            if let Some(w) = traj.as_mut() {
+                if !plan.frame_due(step) {
+                    write_frame(plan, w, &sim)?; // the final frame; dropped again on resume
+                }
+                w.flush().map_err(out_err)?;
+            }
+            m.stepping_seconds += clock.elapsed().as_secs_f64();
+            save_checkpoint(plan, ctx, &sim, &m, &source)?;
+            progress.finish(step, sim.time());
+            return Err(RunError::Interrupted {
+                step,
+                dir: ctx.out_dir.clone(),
+            });
+        }
+        sim.step().map_err(engine_err)?;
+        if step >= sample_start {
+            sample(plan, &sim, &mut m, step - sample_start);
+        }
+        step += 1;
+        if step % report_every == 0 {
+            progress.update(step, sim.time());
+        }
+    }
+    m.stepping_seconds += clock.elapsed().as_secs_f64();
+    save_checkpoint(plan, ctx, &sim, &m, &source)?;
+    if let Some(w) = traj {
+        w.close().map_err(out_err)?;
+    }
+    progress.finish(total, sim.time());
+    Ok((sim, m, source))
 }
 
 /// Seconds per (step × fluid particle) of the walled run and of a periodic box of the same
 /// fluid with the same number of fluid particles.
-fn overhead(
-    sim: &mut Simulation<Walls>,
-    f: &FluidSection,
-    r: &WallRunSection,
-    seed: u64,
-) -> Result<serde_json::Value, RunError> {
+fn overhead(plan: &Plan, sim: &mut Simulation<Walls>) -> Result<serde_json::Value, RunError> {
+    let (f, r) = (plan.fluid, plan.run);
     let steps = 500u64;
     let nf = sim
         .particles()
@@ -159,14 +533,13 @@ fn overhead(
         .iter()
         .filter(|&&t| t == walls::FLUID_TYPE)
         .count();
-    let sampling = true;
     sim.extension_mut().set_sampling(false);
     let t0 = Instant::now();
     sim.run(steps).map_err(engine_err)?;
     let tw = t0.elapsed().as_secs_f64() / (steps as f64 * nf as f64);
-    sim.extension_mut().set_sampling(sampling);
+    sim.extension_mut().set_sampling(true);
     let l = (nf as f64 / f.density).cbrt().max(3.0 * f.cutoff);
-    let mut config = SimConfig::new(DVec3::splat(l), r.timestep, seed);
+    let mut config = SimConfig::new(DVec3::splat(l), r.timestep, plan.seed);
     config.lambda = r.lambda;
     let field = ForceField::single(pair(f));
     let spec = init::FluidSpec {
@@ -174,7 +547,7 @@ fn overhead(
         kbt: f.kbt,
         ..init::FluidSpec::standard()
     };
-    let p = init::fluid(&config, &field, &spec, seed).map_err(engine_err)?;
+    let p = init::fluid(&config, &field, &spec, plan.seed).map_err(engine_err)?;
     let n = p.len();
     let mut plain = Simulation::new(config, field, p).map_err(engine_err)?;
     plain.run(50).map_err(engine_err)?;
@@ -204,157 +577,162 @@ fn write_csv(ctx: &RunContext, name: &str, header: &str, rows: &[Vec<f64>]) -> R
     std::fs::write(&path, s).map_err(|source| RunError::Io { path, source })
 }
 
-/// Runs `kind = "poiseuille-tube"`.
-pub fn run_tube(s: &TubeScenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
-    let (f, t, r) = (&s.fluid, &s.tube, &s.run);
-    let side = 2.0 * (t.radius + f.cutoff) + 0.5;
-    let shape = WallShape::Cylinder {
-        axis: 2,
-        centre: [0.5 * side; 2],
-        radius: t.radius,
-    };
-    let (mut sim, source) = build(
-        shape,
-        DVec3::new(side, side, t.length),
-        f,
-        &s.walls,
-        r,
-        s.seed,
-        &s.base_dir,
-    )?;
-    sim.set_body_force(0, DVec3::new(0.0, 0.0, t.body_force))
-        .map_err(engine_err)?;
-    let adaptation = adapt(&mut sim, &s.walls, f, &s.base_dir, ctx)?;
-    sim.run(r.flow_steps).map_err(engine_err)?;
-    sim.extension_mut().reset_measurements();
-    let nb = r.profile_bins;
-    let w = t.radius / nb as f64;
-    let (mut cnt, mut vz) = (vec![0.0f64; nb], vec![0.0f64; nb]);
-    let mut samples = 0usize;
-    for i in 0..r.steps {
-        sim.step().map_err(engine_err)?;
-        if i % r.sample_every == 0 {
-            let p = sim.particles();
-            for k in 0..p.len() {
-                if p.ptype[k] == walls::FLUID_TYPE {
-                    let b = ((shape.signed_distance(p.pos[k]) + t.radius) / w) as usize;
-                    if b < nb {
-                        cnt[b] += 1.0;
-                        vz[b] += p.vel[k].z;
-                    }
-                }
-            }
-            samples += 1;
+/// The adaptation table from the wall history.
+fn adaptation(sim: &Simulation<Walls>) -> serde_json::Value {
+    let table: Vec<_> = sim
+        .extension()
+        .history()
+        .iter()
+        .map(|h| json!({"iteration": h.iteration, "step": h.step, "max_density_deviation": h.max_deviation, "relative_density": h.relative_density, "forces": h.forces}))
+        .collect();
+    json!({ "iterations": table, "final_forces": sim.extension().forces(), "bin_centres": sim.extension().bin_centres() })
+}
+
+/// A parabola v = a − c r² fitted to the radial bins with centre r < `r_max`, weighted by
+/// their counts; returns (a, c).
+fn fit_parabola(r: &[f64], v: &[f64], count: &[f64], r_max: f64) -> (f64, f64) {
+    let (mut x, mut y, mut w) = (Vec::new(), Vec::new(), Vec::new());
+    for k in 0..r.len() {
+        if r[k] < r_max {
+            x.push(r[k] * r[k]);
+            y.push(v[k]);
+            w.push(count[k]);
         }
     }
-    let rho0 = sim.extension().target_density().unwrap_or(f.density);
+    let (a, b) = fit_line(&x, &y, &w);
+    (a, -b)
+}
+
+/// Tube results: the profile against the parabola, the viscosity from the interior curvature
+/// (with block standard errors), slip, near-wall density, overhead.
+fn tube_results(
+    plan: &Plan,
+    ctx: &RunContext,
+    mut sim: Simulation<Walls>,
+    m: &Measurement,
+    source: &str,
+    resumed: Option<u64>,
+) -> Result<serde_json::Value, RunError> {
+    let Channel::Tube { radius, length, g } = plan.channel else {
+        unreachable!("tube results of a tube plan")
+    };
+    let nb = plan.run.profile_bins;
+    let w = radius / nb as f64;
+    let samples = m.profile.total_samples();
     let rc: Vec<f64> = (0..nb).map(|b| (b as f64 + 0.5) * w).collect();
-    let v: Vec<f64> = vz.iter().zip(&cnt).map(|(a, c)| a / c.max(1.0)).collect();
-    let rho: Vec<f64> = (0..nb)
+    let (cnt, v) = m.profile.mean(0..BLOCKS);
+    let ring = |b: usize| std::f64::consts::PI * (((b + 1) as f64 * w).powi(2) - (b as f64 * w).powi(2)) * length;
+    let rho: Vec<f64> = (0..nb).map(|b| cnt[b] / (samples.max(1) as f64 * ring(b))).collect();
+    let rho0 = sim.extension().target_density().unwrap_or(plan.fluid.density);
+    // whole profile: the parabola the slip is measured against
+    let (a, curv) = fit_parabola(&rc, &v, &cnt, radius);
+    let slip = (a - curv * radius * radius) / a;
+    // interior: η = n g / 4c with the measured interior density n
+    let r_in = radius - INTERIOR_MARGIN_RC * plan.fluid.cutoff;
+    let interior_density = |c: &[f64], s: u64| {
+        let (mut n, mut vol) = (0.0, 0.0);
+        for b in (0..nb).filter(|&b| rc[b] < r_in) {
+            n += c[b];
+            vol += ring(b);
+        }
+        n / (s.max(1) as f64 * vol)
+    };
+    let eta_of = |c: &[f64], v: &[f64], s: u64| {
+        let (_, curv) = fit_parabola(&rc, v, c, r_in);
+        interior_density(c, s) * g / (4.0 * curv)
+    };
+    let interior_bins = rc.iter().filter(|&&x| x < r_in).count();
+    let enough = interior_bins >= MIN_INTERIOR_BINS;
+    let eta_interior = eta_of(&cnt, &v, samples);
+    let eta_blocks: Vec<f64> = (0..BLOCKS)
+        .filter(|&b| enough && m.profile.samples[b] > 0)
         .map(|b| {
-            let (r0, r1) = (b as f64 * w, (b + 1) as f64 * w);
-            cnt[b] / (samples.max(1) as f64 * std::f64::consts::PI * (r1 * r1 - r0 * r0) * t.length)
+            let (c, v) = m.profile.mean(b..b + 1);
+            eta_of(&c, &v, m.profile.samples[b])
         })
         .collect();
-    let r2: Vec<f64> = rc.iter().map(|x| x * x).collect();
-    let (a, b) = fit_line(&r2, &v, &cnt);
-    let curv = -b;
-    let eta = rho0 * t.body_force / (4.0 * curv);
-    let slip = (a - curv * t.radius * t.radius) / a;
-    let fit: Vec<f64> = r2.iter().map(|x| a - curv * x).collect();
-    let rows: Vec<Vec<f64>> = (0..nb).map(|k| vec![rc[k], v[k], fit[k], rho[k]]).collect();
-    write_csv(ctx, "velocity_profile.csv", "r,v_z,parabola,density", &rows)?;
+    let (_, eta_se) = mean_se(&eta_blocks);
+    let (a_in, curv_in) = fit_parabola(&rc, &v, &cnt, r_in);
+    let fit: Vec<f64> = rc.iter().map(|x| a - curv * x * x).collect();
+    let fit_in: Vec<f64> = rc
+        .iter()
+        .map(|x| if enough { a_in - curv_in * x * x } else { f64::NAN })
+        .collect();
+    let rows: Vec<Vec<f64>> = (0..nb).map(|k| vec![rc[k], v[k], fit[k], fit_in[k], rho[k]]).collect();
+    write_csv(
+        ctx,
+        "velocity_profile.csv",
+        "r,v_z,parabola,interior_parabola,density",
+        &rows,
+    )?;
     let near = sim.extension().relative_density();
     let dev = near.iter().map(|x| (x - 1.0).abs()).fold(0.0, f64::max);
-    let over = if r.measure_overhead {
-        overhead(&mut sim, f, r, s.seed)?
+    let temperature = observe::peculiar_temperature(sim.particles(), sim.field(), |x| {
+        let rr = plan.shape.signed_distance(x) + radius;
+        DVec3::new(0.0, 0.0, (a - curv * rr * rr).max(0.0))
+    });
+    let reflections = sim.extension().reflections();
+    let bin_centres = sim.extension().bin_centres();
+    let over = if plan.run.measure_overhead {
+        overhead(plan, &mut sim)?
     } else {
         serde_json::Value::Null
     };
-    let um = t.length_scale_um_per_rc;
+    let um = match plan.length_scale_um_per_rc {
+        Some(l) => json!({ "diameter_um": 2.0 * radius * l, "length_um": length * l }),
+        None => serde_json::Value::Null,
+    };
     Ok(json!({
         "units": "DPD model units: length rc, energy kBT, mass m",
-        "geometry": { "radius": t.radius, "length": t.length, "diameter_um": um.map(|l| 2.0 * t.radius * l), "length_um": um.map(|l| t.length * l) },
+        "geometry": { "radius": radius, "length": length, "si": um },
+        "steps": plan.total(),
+        "resumed_from_step": resumed,
         "wall_force_source": source,
-        "adaptation": adaptation,
-        "profile": { "r": rc, "v_z": v, "parabola": fit, "density": rho, "samples": samples },
-        "parabola": { "centre_velocity": a, "curvature": curv, "viscosity": eta, "slip_velocity": a - curv * t.radius * t.radius, "slip_fraction": slip },
-        "near_wall": { "bin_centres": sim.extension().bin_centres(), "relative_density": near, "max_density_deviation": dev, "target_density": rho0 },
-        "wall_crossings_after_reflection": 0,
-        "reflections": sim.extension().reflections(),
+        "adaptation": adaptation(&sim),
+        "profile": { "r": rc, "v_z": v, "parabola": fit, "interior_parabola": fit_in, "density": rho, "samples": samples },
+        "parabola": { "centre_velocity": a, "curvature": curv, "slip_velocity": a - curv * radius * radius, "slip_fraction": slip, "viscosity_whole_profile": plan.fluid.density * g / (4.0 * curv) },
+        "viscosity": if enough { json!({ "value": eta_interior, "standard_error": eta_se, "blocks": eta_blocks, "fit_radius": r_in, "fit_bins": interior_bins, "interior_density": interior_density(&cnt, samples),
+            "method": "η = n g / (4c): c the curvature of v = a − c r² fitted over r < R − 2rc, n the measured density there; standard error over the time blocks" }) }
+            else { json!({ "value": null, "note": format!("the tube interior r < R − 2rc = {r_in:.2} holds {interior_bins} profile bins; the fit needs {MIN_INTERIOR_BINS} (a larger radius or more run.profile_bins)") }) },
+        "near_wall": { "bin_centres": bin_centres, "relative_density": near, "max_density_deviation": dev, "target_density": rho0 },
+        "reflections": reflections,
+        "temperature": temperature,
+        "stepping_seconds": m.stepping_seconds,
         "overhead": over,
-        "temperature": observe::peculiar_temperature(sim.particles(), sim.field(), |x| {
-            let rr = shape.signed_distance(x) + t.radius;
-            DVec3::new(0.0, 0.0, (a - curv * rr * rr).max(0.0))
-        }),
+        "checkpoint_file": ctx.out_dir.join(CHECKPOINT_FILE),
+        "trajectory_file": (plan.output.trajectory_every_steps > 0).then(|| ctx.out_dir.join(TRAJECTORY_FILE)),
     }))
 }
 
-/// Runs `kind = "couette"`.
-pub fn run_couette(s: &CouetteScenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
-    let (f, pl, r) = (&s.fluid, &s.plates, &s.run);
-    let rc = f.cutoff;
-    let (lower, upper, period) = (rc, rc + pl.gap, pl.gap + 2.0 * rc);
-    let u = pl.wall_speed;
-    let shape = WallShape::Plates {
-        axis: 2,
+/// Couette results: the profile against the line, slip at each wall, η from the wall stress.
+fn couette_results(
+    plan: &Plan,
+    ctx: &RunContext,
+    mut sim: Simulation<Walls>,
+    m: &Measurement,
+    source: &str,
+    resumed: Option<u64>,
+) -> Result<serde_json::Value, RunError> {
+    let Channel::Couette {
         lower,
-        upper,
-        period,
-        lower_velocity: DVec3::new(-u, 0.0, 0.0),
-        upper_velocity: DVec3::new(u, 0.0, 0.0),
+        gap,
+        speed: u,
+        area,
+    } = plan.channel
+    else {
+        unreachable!("couette results of a couette plan")
     };
-    let (mut sim, source) = build(
-        shape,
-        DVec3::new(pl.width[0], pl.width[1], period),
-        f,
-        &s.walls,
-        r,
-        s.seed,
-        &s.base_dir,
-    )?;
-    let adaptation = adapt(&mut sim, &s.walls, f, &s.base_dir, ctx)?;
-    sim.run(r.flow_steps).map_err(engine_err)?;
-    sim.extension_mut().reset_measurements();
-    let nb = r.profile_bins;
-    let dt = r.timestep;
-    let area = pl.width[0] * pl.width[1];
-    let (mut cnt, mut vx) = (vec![0.0f64; nb], vec![0.0f64; nb]);
-    let mut stress = Vec::with_capacity(r.steps as usize);
-    let mut imp_prev = [0.0f64; 2];
-    let mut samples = 0usize;
-    for i in 0..r.steps {
-        sim.step().map_err(engine_err)?;
-        let p = sim.particles();
-        let mut fw = [0.0f64; 2];
-        let sample = i % r.sample_every == 0;
-        for k in 0..p.len() {
-            if p.ptype[k] == walls::FLUID_TYPE {
-                if sample {
-                    let b = (((p.pos[k].z - lower) / pl.gap * nb as f64) as usize).min(nb - 1);
-                    cnt[b] += 1.0;
-                    vx[b] += p.vel[k].x;
-                }
-            } else {
-                fw[shape.side(p.pos[k])] += p.force[k].x;
-            }
-        }
-        samples += sample as usize;
-        let imp = sim.extension().impulse();
-        for k in 0..2 {
-            fw[k] += (imp[k].x - imp_prev[k]) / dt;
-            imp_prev[k] = imp[k].x;
-        }
-        stress.push((fw[0] - fw[1]) / (2.0 * area));
-    }
-    let (sigma, sigma_se) = observe::block_error(&stress)
-        .or_else(|_| observe::block_average(&stress, 2))
+    let upper = lower + gap;
+    let nb = plan.run.profile_bins;
+    let samples = m.profile.total_samples();
+    let (sigma, sigma_se) = observe::block_error(&m.stress)
+        .or_else(|_| observe::block_average(&m.stress, 2))
         .unwrap_or((f64::NAN, f64::NAN));
-    let z: Vec<f64> = (0..nb).map(|b| lower + (b as f64 + 0.5) * pl.gap / nb as f64).collect();
-    let v: Vec<f64> = vx.iter().zip(&cnt).map(|(a, c)| a / c.max(1.0)).collect();
+    let z: Vec<f64> = (0..nb).map(|b| lower + (b as f64 + 0.5) * gap / nb as f64).collect();
+    let (cnt, v) = m.profile.mean(0..BLOCKS);
     let rho: Vec<f64> = cnt
         .iter()
-        .map(|c| c / (samples.max(1) as f64 * area * pl.gap / nb as f64))
+        .map(|c| c / (samples.max(1) as f64 * area * gap / nb as f64))
         .collect();
     let (c0, c1) = fit_line(&z, &v, &cnt);
     let fit: Vec<f64> = z.iter().map(|x| c0 + c1 * x).collect();
@@ -364,23 +742,116 @@ pub fn run_couette(s: &CouetteScenario, ctx: &RunContext) -> Result<serde_json::
     let slip_hi = (u - (c0 + c1 * upper)) / (2.0 * u);
     let near = sim.extension().relative_density();
     let dev = near.iter().map(|x| (x - 1.0).abs()).fold(0.0, f64::max);
-    let over = if r.measure_overhead {
-        overhead(&mut sim, f, r, s.seed)?
+    let reflections = sim.extension().reflections();
+    let (bin_centres, rho0) = (sim.extension().bin_centres(), sim.extension().target_density());
+    let over = if plan.run.measure_overhead {
+        overhead(plan, &mut sim)?
     } else {
         serde_json::Value::Null
     };
     Ok(json!({
         "units": "DPD model units: length rc, energy kBT, mass m",
-        "geometry": { "gap": pl.gap, "width": pl.width, "wall_speed": u },
+        "geometry": { "gap": gap, "width": [plan.box_lengths.x, plan.box_lengths.y], "wall_speed": u },
+        "steps": plan.total(),
+        "resumed_from_step": resumed,
         "wall_force_source": source,
-        "adaptation": adaptation,
+        "adaptation": adaptation(&sim),
         "profile": { "z": z, "v_x": v, "line": fit, "density": rho, "samples": samples },
-        "line": { "intercept": c0, "shear_rate": c1, "no_slip_shear_rate": 2.0 * u / pl.gap, "slip_fraction_lower": slip_lo, "slip_fraction_upper": slip_hi },
-        "shear_stress": { "mean": sigma, "standard_error": sigma_se, "samples": stress.len() },
+        "line": { "intercept": c0, "shear_rate": c1, "no_slip_shear_rate": 2.0 * u / gap, "slip_fraction_lower": slip_lo, "slip_fraction_upper": slip_hi },
+        "shear_stress": { "mean": sigma, "standard_error": sigma_se, "samples": m.stress.len() },
         "viscosity": { "value": sigma / c1, "standard_error": sigma_se / c1.abs() },
-        "near_wall": { "bin_centres": sim.extension().bin_centres(), "relative_density": near, "max_density_deviation": dev, "target_density": sim.extension().target_density() },
-        "wall_crossings_after_reflection": 0,
-        "reflections": sim.extension().reflections(),
+        "near_wall": { "bin_centres": bin_centres, "relative_density": near, "max_density_deviation": dev, "target_density": rho0 },
+        "reflections": reflections,
+        "stepping_seconds": m.stepping_seconds,
         "overhead": over,
+        "checkpoint_file": ctx.out_dir.join(CHECKPOINT_FILE),
+        "trajectory_file": (plan.output.trajectory_every_steps > 0).then(|| ctx.out_dir.join(TRAJECTORY_FILE)),
     }))
+}
+
+fn tube_plan(s: &TubeScenario) -> Plan<'_> {
+    let (f, t) = (&s.fluid, &s.tube);
+    let side = 2.0 * (t.radius + f.cutoff) + 0.5;
+    Plan {
+        kind: "poiseuille-tube",
+        toml: toml::to_string(s).unwrap_or_default(),
+        seed: s.seed,
+        fluid: f,
+        walls: &s.walls,
+        run: &s.run,
+        output: &s.output,
+        base_dir: &s.base_dir,
+        shape: WallShape::Cylinder {
+            axis: 2,
+            centre: [0.5 * side; 2],
+            radius: t.radius,
+        },
+        box_lengths: DVec3::new(side, side, t.length),
+        channel: Channel::Tube {
+            radius: t.radius,
+            length: t.length,
+            g: t.body_force,
+        },
+        length_scale_um_per_rc: t.length_scale_um_per_rc,
+    }
+}
+
+fn couette_plan(s: &CouetteScenario) -> Plan<'_> {
+    let (f, pl) = (&s.fluid, &s.plates);
+    let rc = f.cutoff;
+    let (lower, upper, period) = (rc, rc + pl.gap, pl.gap + 2.0 * rc);
+    let u = pl.wall_speed;
+    Plan {
+        kind: "couette",
+        toml: toml::to_string(s).unwrap_or_default(),
+        seed: s.seed,
+        fluid: f,
+        walls: &s.walls,
+        run: &s.run,
+        output: &s.output,
+        base_dir: &s.base_dir,
+        shape: WallShape::Plates {
+            axis: 2,
+            lower,
+            upper,
+            period,
+            lower_velocity: DVec3::new(-u, 0.0, 0.0),
+            upper_velocity: DVec3::new(u, 0.0, 0.0),
+        },
+        box_lengths: DVec3::new(pl.width[0], pl.width[1], period),
+        channel: Channel::Couette {
+            lower,
+            gap: pl.gap,
+            speed: u,
+            area: pl.width[0] * pl.width[1],
+        },
+        length_scale_um_per_rc: None,
+    }
+}
+
+/// Runs `kind = "poiseuille-tube"`, from step 0 or from a checkpoint.
+pub fn run_tube(
+    s: &TubeScenario,
+    ctx: &RunContext,
+    checkpoint: Option<&Checkpoint>,
+) -> Result<serde_json::Value, RunError> {
+    let plan = tube_plan(s);
+    let (sim, m, source) = drive(&plan, ctx, checkpoint)?;
+    tube_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step))
+}
+
+/// Runs `kind = "couette"`, from step 0 or from a checkpoint.
+pub fn run_couette(
+    s: &CouetteScenario,
+    ctx: &RunContext,
+    checkpoint: Option<&Checkpoint>,
+) -> Result<serde_json::Value, RunError> {
+    let plan = couette_plan(s);
+    let (sim, m, source) = drive(&plan, ctx, checkpoint)?;
+    couette_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step))
+}
+
+/// The scenario directory a wall checkpoint recorded (where its force file lives).
+pub fn checkpoint_base_dir(ck: &Checkpoint) -> Option<PathBuf> {
+    ck.scalar_str("base_dir").ok().map(PathBuf::from)
 }

@@ -207,6 +207,33 @@ impl Default for FluidOutput {
     }
 }
 
+/// `[output]` of the wall scenarios (optional). Steps count from the start of the walled run
+/// (adaptation included).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallOutput {
+    /// Write a frame (fluid and wall particles, with types) to `trajectory.h5` every this many
+    /// steps; 0 (default) writes no trajectory.
+    #[serde(default)]
+    pub trajectory_every_steps: u64,
+    /// Store every this-many-th particle in a frame (default 1: all).
+    #[serde(default = "one_u64")]
+    pub particle_stride: u64,
+    /// Write `checkpoint.h5` every this many steps; 0 (default): only at the end and on Ctrl-C.
+    #[serde(default)]
+    pub checkpoint_every_steps: u64,
+}
+
+impl Default for WallOutput {
+    fn default() -> Self {
+        Self {
+            trajectory_every_steps: 0,
+            particle_stride: 1,
+            checkpoint_every_steps: 0,
+        }
+    }
+}
+
 fn one_u64() -> u64 {
     1
 }
@@ -399,6 +426,8 @@ pub struct TubeScenario {
     pub tube: TubeSection,
     pub walls: WallsSection,
     pub run: WallRunSection,
+    #[serde(default)]
+    pub output: WallOutput,
     /// Directory of the scenario file (for `walls.force_file`); not part of the file.
     #[serde(skip)]
     pub base_dir: PathBuf,
@@ -427,6 +456,8 @@ pub struct CouetteScenario {
     pub plates: PlatesSection,
     pub walls: WallsSection,
     pub run: WallRunSection,
+    #[serde(default)]
+    pub output: WallOutput,
     /// Directory of the scenario file; not part of the file.
     #[serde(skip)]
     pub base_dir: PathBuf,
@@ -717,6 +748,26 @@ fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
     }
     let r = &s.run;
     validate_stepping(c, r.timestep, 0.2, r.lambda, r.steps, r.sample_every)?;
+    validate_output(&c, s.output.particle_stride)?;
+    if s.output.field_bins > 1_000_000 {
+        return Err(c.fail(
+            "output.field_bins",
+            s.output.field_bins,
+            "an integer from 0 (no field) to 1000000",
+        ));
+    }
+    Ok(())
+}
+
+/// `[output]` keys every time-stepping scenario shares.
+fn validate_output(c: &Check, particle_stride: u64) -> Result<(), ScenarioError> {
+    if particle_stride == 0 || particle_stride > 1_000_000_000 {
+        return Err(c.fail(
+            "output.particle_stride",
+            particle_stride,
+            "a positive stride (1: every particle, 10: every tenth)",
+        ));
+    }
     Ok(())
 }
 
@@ -833,6 +884,7 @@ fn validate_wall_common(
 fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
     let c = Check { file };
     validate_wall_common(&s.kind, "poiseuille-tube", &s.fluid, &s.walls, &s.run, &c)?;
+    validate_output(&c, s.output.particle_stride)?;
     let rc = s.fluid.cutoff;
     c.range(
         "tube.radius",
@@ -874,6 +926,7 @@ fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
 fn validate_couette(s: &CouetteScenario, file: &str) -> Result<(), ScenarioError> {
     let c = Check { file };
     validate_wall_common(&s.kind, "couette", &s.fluid, &s.walls, &s.run, &c)?;
+    validate_output(&c, s.output.particle_stride)?;
     let rc = s.fluid.cutoff;
     c.range(
         "plates.gap",

@@ -16,7 +16,6 @@ use glam::DVec3;
 use hemodpd_engine::init::{self, FluidSpec, Placement};
 use hemodpd_engine::{observe, ForceField, PairParams, Particles, SimConfig, SimState, Simulation};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
-use hemodpd_io::progress::{Progress, ProgressMode};
 use hemodpd_io::{GridSpec, RunMetadata, TrajectoryWriter, UnitSystem};
 use serde_json::json;
 use std::sync::atomic::Ordering;
@@ -33,7 +32,7 @@ fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
     RunError::Engine(e.to_string())
 }
 
-fn out_err(e: hemodpd_io::IoError) -> RunError {
+pub(crate) fn out_err(e: hemodpd_io::IoError) -> RunError {
     RunError::Output(e.to_string())
 }
 
@@ -111,19 +110,24 @@ fn save_checkpoint(s: &FluidScenario, ctx: &RunContext, sim: &Simulation, series
         toml::to_string(s).unwrap_or_default(),
     );
     ck.set_scalar("scenario_kind", ScalarValue::Str("dpd-fluid".into()));
-    ck.insert_vec3("positions", &p.pos);
-    ck.insert_vec3("velocities", &p.vel);
-    ck.insert_vec3("forces", &p.force);
-    ck.insert_u32("types", p.ptype.iter().map(|&t| t as u32).collect());
-    ck.insert_u32("ids", p.id.clone());
+    particles_into_checkpoint(&mut ck, p);
     ck.insert_f64("temperature_samples", series.temperature.clone());
     ck.insert_f64("pressure_samples", series.pressure.clone());
     ck.set_scalar("production_seconds", ScalarValue::F64(series.production_seconds));
     ck.save_atomic(ctx.out_dir.join(CHECKPOINT_FILE)).map_err(out_err)
 }
 
-fn restore(s: &FluidScenario, ck: &Checkpoint) -> Result<(Simulation, Series), RunError> {
-    let (config, field) = config_and_field(s);
+/// Stores the particle arrays (positions, velocities, the last forces, types, ids).
+pub(crate) fn particles_into_checkpoint(ck: &mut Checkpoint, p: &Particles) {
+    ck.insert_vec3("positions", &p.pos);
+    ck.insert_vec3("velocities", &p.vel);
+    ck.insert_vec3("forces", &p.force);
+    ck.insert_u32("types", p.ptype.iter().map(|&t| t as u32).collect());
+    ck.insert_u32("ids", p.id.clone());
+}
+
+/// Reads the particle arrays back, checking that their lengths agree.
+pub(crate) fn particles_from_checkpoint(ck: &Checkpoint) -> Result<Particles, RunError> {
     let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
     let pos = ck.vec3s("positions", None).map_err(bad)?;
     let n = pos.len();
@@ -141,6 +145,13 @@ fn restore(s: &FluidScenario, ck: &Checkpoint) -> Result<(Simulation, Series), R
             particles.id.len()
         )));
     }
+    Ok(particles)
+}
+
+fn restore(s: &FluidScenario, ck: &Checkpoint) -> Result<(Simulation, Series), RunError> {
+    let (config, field) = config_and_field(s);
+    let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
+    let particles = particles_from_checkpoint(ck)?;
     let state = SimState {
         config,
         field,
@@ -275,12 +286,7 @@ pub fn run_from(
     } else {
         None
     };
-    let mode = if ctx.progress {
-        ProgressMode::Auto
-    } else {
-        ProgressMode::Quiet
-    };
-    let mut progress = Progress::new(total, start, mode, 1.0, "τ");
+    let mut progress = ctx.progress(total, start);
     let report_every = (total / 200).max(1);
     let mut t_prod = std::time::Instant::now();
     let mut step = start;

@@ -48,6 +48,18 @@ impl RunContext {
             stop_at_step: None,
         }
     }
+
+    /// A progress reporter for a stepped run from `start` to `total` steps (a bar on a terminal,
+    /// log lines otherwise, nothing when progress is off).
+    pub fn progress(&self, total: u64, start: u64) -> hemodpd_io::progress::Progress {
+        use hemodpd_io::progress::{Progress, ProgressMode};
+        let mode = if self.progress {
+            ProgressMode::Auto
+        } else {
+            ProgressMode::Quiet
+        };
+        Progress::new(total, start, mode, 1.0, "τ")
+    }
 }
 
 /// Errors of a run (after the scenario was validated).
@@ -90,8 +102,16 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
         )));
     }
     let ck = hemodpd_io::checkpoint::Checkpoint::load(&path).map_err(|e| err(e.to_string()))?;
-    let scenario =
+    let mut scenario =
         load_str(&ck.scenario_toml, &format!("{} (scenario)", path.display()), &[]).map_err(|e| err(e.to_string()))?;
+    // wall scenarios: their force file is relative to the original scenario file
+    if let Some(dir) = channel::checkpoint_base_dir(&ck) {
+        match &mut scenario {
+            Scenario::PoiseuilleTube(t) => t.base_dir = dir,
+            Scenario::Couette(t) => t.base_dir = dir,
+            _ => {}
+        }
+    }
     if scenario.seed() != ck.seed {
         return Err(err(format!(
             "checkpoint seed {} differs from its scenario's seed {}",
@@ -105,6 +125,8 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
     };
     let results = match &scenario {
         Scenario::DpdFluid(s) => fluid::run_from(s, &ctx, Some(&ck))?,
+        Scenario::PoiseuilleTube(s) => channel::run_tube(s, &ctx, Some(&ck))?,
+        Scenario::Couette(s) => channel::run_couette(s, &ctx, Some(&ck))?,
         other => return Err(err(format!("{} scenarios do not resume", other.kind()))),
     };
     Ok((scenario, results))
@@ -119,7 +141,7 @@ pub fn run(scenario: &Scenario, ctx: &RunContext) -> Result<serde_json::Value, R
     match scenario {
         Scenario::Stretching(s) => stretching::run(s, ctx),
         Scenario::DpdFluid(s) => fluid::run(s, ctx),
-        Scenario::PoiseuilleTube(s) => channel::run_tube(s, ctx),
-        Scenario::Couette(s) => channel::run_couette(s, ctx),
+        Scenario::PoiseuilleTube(s) => channel::run_tube(s, ctx, None),
+        Scenario::Couette(s) => channel::run_couette(s, ctx, None),
     }
 }
