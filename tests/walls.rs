@@ -93,8 +93,11 @@ struct Tube {
     centre: f64,
     density_dev: f64,
     reflections: u64,
-    /// (r, v_z, parabola, ρ/ρ0, interior parabola) per radial bin.
-    profile: Vec<[f64; 5]>,
+    /// (r, v_z, parabola, ρ/ρ0, interior parabola, analytic no-slip parabola for η = 0.842)
+    /// per radial bin.
+    profile: Vec<[f64; 6]>,
+    /// Measured centre velocity over that of the analytic no-slip parabola for η = 0.842.
+    centre_over_reference: f64,
 }
 
 /// Runs the shipped tube scenario with R = `radius`, body force `g`, length `length`, and
@@ -110,6 +113,7 @@ fn poiseuille(radius: f64, length: f64, g: f64, adaptive: bool, steps: u64, seed
         format!("tube.body_force={g}"),
         format!("seed={seed}"),
         format!("walls.adaptive={adaptive}"),
+        format!("tube.reference_viscosity={ETA_INTERIOR_REVERSE_POISEUILLE}"),
         format!("walls.force_file={:?}", file.to_str().unwrap()),
         format!("run.flow_steps={}", if adaptive { 3000 } else { 8000 }),
         format!("run.steps={steps}"),
@@ -127,6 +131,12 @@ fn poiseuille(radius: f64, length: f64, g: f64, adaptive: bool, steps: u64, seed
         col("interior_parabola"),
     );
     let rho0 = f(&r["near_wall"]["target_density"]);
+    let reference: Vec<f64> = r["reference_parabola"]["profile"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(f)
+        .collect();
     let t = Tube {
         eta: f(&r["viscosity"]["value"]),
         eta_se: f(&r["viscosity"]["standard_error"]),
@@ -135,15 +145,17 @@ fn poiseuille(radius: f64, length: f64, g: f64, adaptive: bool, steps: u64, seed
         density_dev: f(&r["near_wall"]["max_density_deviation"]),
         reflections: r["reflections"].as_u64().unwrap(),
         profile: (0..rr.len())
-            .map(|k| [rr[k], v[k], fit[k], rho[k] / rho0, fit_in[k]])
+            .map(|k| [rr[k], v[k], fit[k], rho[k] / rho0, fit_in[k], reference[k]])
             .collect(),
+        centre_over_reference: f(&r["reference_parabola"]["centre_velocity_measured_over_reference"]),
     };
     println!(
-        "tube R = {radius}, L = {length}, g = {g}, adaptive = {adaptive}, seed {seed}: η = {:.4} ± {:.4} (whole profile {:.4}), centre {:.4}, slip {:.4}, near-wall max |ρ/ρ0−1| = {:.4}, reflections {}",
+        "tube R = {radius}, L = {length}, g = {g}, adaptive = {adaptive}, seed {seed}: η = {:.4} ± {:.4} (whole profile {:.4}), centre {:.4} ({:.4} × the no-slip parabola for η = {ETA_INTERIOR_REVERSE_POISEUILLE}), slip {:.4}, near-wall max |ρ/ρ0−1| = {:.4}, reflections {}",
         t.eta,
         t.eta_se,
         f(&r["parabola"]["viscosity_whole_profile"]),
         t.centre,
+        t.centre_over_reference,
         t.slip,
         t.density_dev,
         t.reflections
@@ -403,6 +415,10 @@ fn wall_figures() {
             t.profile.iter().map(|p| (p[0], p[4])).collect(),
         ));
     }
+    series.push(Series::line(
+        format!("no-slip parabola for η = {ETA_INTERIOR_REVERSE_POISEUILLE} (reverse Poiseuille)"),
+        adapted.profile.iter().map(|p| (p[0], p[5])).collect(),
+    ));
     line_chart(
         dir.join("walls_tube_velocity.png"),
         "Poiseuille flow in a tube, R = 5 rc, g = 0.1",

@@ -140,8 +140,14 @@ pub struct Measurement {
 /// The geometry a walled run measures in.
 #[derive(Clone, Copy, Debug)]
 enum Channel {
-    /// Tube of radius `radius` along z, length `length`, body force `g` along z.
-    Tube { radius: f64, length: f64, g: f64 },
+    /// Tube of radius `radius` along z, length `length`, body force `g` along z; the
+    /// independently measured viscosity to compare with, if any.
+    Tube {
+        radius: f64,
+        length: f64,
+        g: f64,
+        reference_viscosity: Option<f64>,
+    },
     /// Plates at z = `lower` and `lower + gap`, moving at ∓`speed` along x; `area` = Lx·Ly.
     Couette {
         lower: f64,
@@ -613,7 +619,13 @@ fn tube_results(
     source: &str,
     resumed: Option<u64>,
 ) -> Result<serde_json::Value, RunError> {
-    let Channel::Tube { radius, length, g } = plan.channel else {
+    let Channel::Tube {
+        radius,
+        length,
+        g,
+        reference_viscosity,
+    } = plan.channel
+    else {
         unreachable!("tube results of a tube plan")
     };
     let nb = plan.run.profile_bins;
@@ -658,11 +670,30 @@ fn tube_results(
         .iter()
         .map(|x| if enough { a_in - curv_in * x * x } else { f64::NAN })
         .collect();
-    let rows: Vec<Vec<f64>> = (0..nb).map(|k| vec![rc[k], v[k], fit[k], fit_in[k], rho[k]]).collect();
+    // the analytic no-slip parabola for the independently measured viscosity, with the mean
+    // density of the tube
+    let n_mean = cnt.iter().sum::<f64>() / (samples.max(1) as f64 * std::f64::consts::PI * radius * radius * length);
+    let reference: Vec<f64> = rc
+        .iter()
+        .map(|x| reference_viscosity.map_or(f64::NAN, |eta| n_mean * g * (radius * radius - x * x) / (4.0 * eta)))
+        .collect();
+    let reference_json = match reference_viscosity {
+        Some(eta) => {
+            let centre = n_mean * g * radius * radius / (4.0 * eta);
+            let rms = (v.iter().zip(&reference).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / nb as f64).sqrt();
+            json!({ "viscosity": eta, "density": n_mean, "centre_velocity": centre, "centre_velocity_measured_over_reference": a / centre,
+                    "rms_deviation_over_centre_velocity": rms / centre, "profile": reference,
+                    "definition": "v = n g (R² − r²)/(4η): no slip at the geometric wall R, n the mean density in the tube" })
+        }
+        None => serde_json::Value::Null,
+    };
+    let rows: Vec<Vec<f64>> = (0..nb)
+        .map(|k| vec![rc[k], v[k], fit[k], fit_in[k], reference[k], rho[k]])
+        .collect();
     write_csv(
         ctx,
         "velocity_profile.csv",
-        "r,v_z,parabola,interior_parabola,density",
+        "r,v_z,parabola,interior_parabola,reference_parabola,density",
         &rows,
     )?;
     let near = sim.extension().relative_density();
@@ -691,6 +722,7 @@ fn tube_results(
         "adaptation": adaptation(&sim),
         "profile": { "r": rc, "v_z": v, "parabola": fit, "interior_parabola": fit_in, "density": rho, "samples": samples },
         "parabola": { "centre_velocity": a, "curvature": curv, "slip_velocity": a - curv * radius * radius, "slip_fraction": slip, "viscosity_whole_profile": plan.fluid.density * g / (4.0 * curv) },
+        "reference_parabola": reference_json,
         "viscosity": if enough { json!({ "value": eta_interior, "standard_error": eta_se, "blocks": eta_blocks, "fit_radius": r_in, "fit_bins": interior_bins, "interior_density": interior_density(&cnt, samples),
             "method": "η = n g / (4c): c the curvature of v = a − c r² fitted over r < R − 2rc, n the measured density there; standard error over the time blocks" }) }
             else { json!({ "value": null, "note": format!("the tube interior r < R − 2rc = {r_in:.2} holds {interior_bins} profile bins; the fit needs {MIN_INTERIOR_BINS} (a larger radius or more run.profile_bins)") }) },
@@ -791,6 +823,7 @@ fn tube_plan(s: &TubeScenario) -> Plan<'_> {
             radius: t.radius,
             length: t.length,
             g: t.body_force,
+            reference_viscosity: t.reference_viscosity,
         },
         length_scale_um_per_rc: t.length_scale_um_per_rc,
     }

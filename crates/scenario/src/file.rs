@@ -413,6 +413,11 @@ pub struct TubeSection {
     /// µm per rc, to report lengths in µm as well (optional).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub length_scale_um_per_rc: Option<f64>,
+    /// Viscosity of the fluid measured independently (model units; 0.842 for the standard
+    /// fluid by reverse Poiseuille, docs/engine.md). Optional: when given, the results compare the
+    /// profile with the analytic no-slip parabola v = n g (R² − r²)/(4η) for it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_viscosity: Option<f64>,
 }
 
 /// `kind = "poiseuille-tube"`: body-force-driven flow in a tube with adaptive walls.
@@ -914,6 +919,15 @@ fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
             1e-3,
             1e3,
             "µm per rc between 1e-3 and 1e3",
+        )?;
+    }
+    if let Some(eta) = s.tube.reference_viscosity {
+        c.range(
+            "tube.reference_viscosity",
+            eta,
+            1e-3,
+            1e4,
+            "a viscosity between 1e-3 and 1e4 in model units (0.842 for the standard fluid)",
         )?;
     }
     let side = 2.0 * (s.tube.radius + rc) + 0.5;
