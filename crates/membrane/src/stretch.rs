@@ -26,7 +26,7 @@ pub struct StretchOptions {
 }
 
 /// Equilibrium at one force.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct StretchPoint {
     pub force: f64,
     pub axial_diameter: f64,
@@ -38,6 +38,7 @@ pub struct StretchPoint {
     pub area_deviation: f64,
     pub volume_deviation: f64,
     pub energy: EnergyTerms,
+    /// Vertex positions at equilibrium (not serialised).
     #[serde(skip)]
     pub positions: Vec<DVec3>,
 }
@@ -56,6 +57,8 @@ pub enum StretchError {
     },
     #[error("at force {force}: {source}")]
     Force { force: f64, source: ForceError },
+    #[error("the start shape has {start} vertices, the rest shape {rest}")]
+    StartLength { start: usize, rest: usize },
 }
 
 /// Indices of the loaded vertices: (the `fraction` with the largest x, the `fraction` with the smallest x).
@@ -87,13 +90,36 @@ pub fn stretch(
     model: &MembraneModel,
     rest: &[DVec3],
     opts: &StretchOptions,
+    observer: impl FnMut(&StretchPoint),
+) -> Result<Vec<StretchPoint>, StretchError> {
+    stretch_from(model, rest, rest, opts, || false, observer)
+}
+
+/// Like [`stretch`], but starting from `start` (the rest shape, or the equilibrium of the force
+/// before `opts.forces[0]` when a run continues) and polling `stop` once per solver iteration.
+/// When `stop` returns true the force in progress is abandoned and the equilibria reached so far
+/// are returned (fewer than `opts.forces`). The loaded vertices and the solver's first step come
+/// from `rest`, and the solver's memory starts empty at every force, so a run split into parts
+/// gives the same equilibria, bit for bit, as one run.
+pub fn stretch_from(
+    model: &MembraneModel,
+    rest: &[DVec3],
+    start: &[DVec3],
+    opts: &StretchOptions,
+    stop: impl Fn() -> bool,
     mut observer: impl FnMut(&StretchPoint),
 ) -> Result<Vec<StretchPoint>, StretchError> {
     if !(opts.end_fraction > 0.0 && opts.end_fraction < 0.5) {
         return Err(StretchError::BadFraction(opts.end_fraction));
     }
+    if start.len() != rest.len() {
+        return Err(StretchError::StartLength {
+            start: start.len(),
+            rest: rest.len(),
+        });
+    }
     let (high, low) = loaded_vertices(rest, opts.end_fraction);
-    let mut x = rest.to_vec();
+    let mut x = start.to_vec();
     let mut out = Vec::with_capacity(opts.forces.len());
     let (d0, _) = diameters(rest);
     // the first step of a fresh L-BFGS memory moves no vertex more than 1e-4 cell diameters
@@ -115,9 +141,12 @@ pub fn stretch(
             g.iter_mut().for_each(|gi| *gi = -*gi);
             Ok(e.total() - work)
         };
-        let (iterations, residual) = solver
-            .minimize(&mut x, objective, opts.tolerance, opts.max_iterations)
-            .map_err(|source| StretchError::Force { force, source })?;
+        let Some((iterations, residual)) = solver
+            .minimize(&mut x, objective, opts.tolerance, opts.max_iterations, &stop)
+            .map_err(|source| StretchError::Force { force, source })?
+        else {
+            return Ok(out);
+        };
         if residual >= opts.tolerance {
             return Err(StretchError::NotConverged {
                 force,
@@ -184,14 +213,16 @@ impl Lbfgs {
         }
     }
 
-    /// Minimises from `x` until max |g| < tol. Returns (iterations, final max |g|).
+    /// Minimises from `x` until max |g| < tol. Returns (iterations, final max |g|), or None
+    /// when `stop` returned true (checked once per iteration; `x` is then partly relaxed).
     fn minimize(
         &mut self,
         x: &mut [DVec3],
         mut f: impl FnMut(&[DVec3], &mut [DVec3]) -> Result<f64, ForceError>,
         tol: f64,
         max_iter: usize,
-    ) -> Result<(usize, f64), ForceError> {
+        stop: &impl Fn() -> bool,
+    ) -> Result<Option<(usize, f64)>, ForceError> {
         self.s.clear();
         self.y.clear();
         let mut e = f(x, &mut self.g)?;
@@ -199,7 +230,10 @@ impl Lbfgs {
         for it in 0..max_iter {
             let gmax = max_norm(&self.g);
             if gmax < tol {
-                return Ok((it, gmax));
+                return Ok(Some((it, gmax)));
+            }
+            if stop() {
+                return Ok(None);
             }
             self.direction();
             let mut gd = dot(&self.g, &self.d);
@@ -253,13 +287,13 @@ impl Lbfgs {
                 self.s.clear();
                 self.y.clear();
                 if stalls > 5 {
-                    return Ok((it, max_norm(&self.g)));
+                    return Ok(Some((it, max_norm(&self.g))));
                 }
             } else {
                 stalls = 0;
             }
         }
-        Ok((max_iter, max_norm(&self.g)))
+        Ok(Some((max_iter, max_norm(&self.g))))
     }
 
     /// Two-loop recursion: d = −H g.

@@ -28,7 +28,7 @@ use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{RunMetadata, TrajectoryWriter};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::time::Instant;
 
@@ -882,9 +882,4 @@ pub fn run_couette(
     let plan = couette_plan(s);
     let (sim, m, source) = drive(&plan, ctx, checkpoint)?;
     couette_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step))
-}
-
-/// The scenario directory a wall checkpoint recorded (where its force file lives).
-pub fn checkpoint_base_dir(ck: &Checkpoint) -> Option<PathBuf> {
-    ck.scalar_str("base_dir").ok().map(PathBuf::from)
 }

@@ -97,19 +97,20 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
     };
     if !path.exists() {
         return Err(err(format!(
-            "no {} there (only runs with time steps write checkpoints)",
+            "no {} there (runs write it after their first checkpoint interval, at the end and on Ctrl-C)",
             fluid::CHECKPOINT_FILE
         )));
     }
     let ck = hemodpd_io::checkpoint::Checkpoint::load(&path).map_err(|e| err(e.to_string()))?;
     let mut scenario =
         load_str(&ck.scenario_toml, &format!("{} (scenario)", path.display()), &[]).map_err(|e| err(e.to_string()))?;
-    // wall scenarios: their force file is relative to the original scenario file
-    if let Some(dir) = channel::checkpoint_base_dir(&ck) {
+    // files named in the scenario (a mesh, a wall force profile) are relative to its directory
+    if let Ok(dir) = ck.scalar_str("base_dir").map(PathBuf::from) {
         match &mut scenario {
             Scenario::PoiseuilleTube(t) => t.base_dir = dir,
             Scenario::Couette(t) => t.base_dir = dir,
-            _ => {}
+            Scenario::Stretching(t) => t.base_dir = dir,
+            Scenario::DpdFluid(_) => {}
         }
     }
     if scenario.seed() != ck.seed {
@@ -127,7 +128,7 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
         Scenario::DpdFluid(s) => fluid::run_from(s, &ctx, Some(&ck))?,
         Scenario::PoiseuilleTube(s) => channel::run_tube(s, &ctx, Some(&ck))?,
         Scenario::Couette(s) => channel::run_couette(s, &ctx, Some(&ck))?,
-        other => return Err(err(format!("{} scenarios do not resume", other.kind()))),
+        Scenario::Stretching(s) => stretching::run_from(s, &ctx, Some(&ck))?,
     };
     Ok((scenario, results))
 }

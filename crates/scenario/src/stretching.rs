@@ -4,6 +4,7 @@
 use crate::file::StretchingScenario;
 use crate::mesh_cache::{self, constants_um_pn};
 use crate::{RunContext, RunError};
+use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{FrameScalar, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
 use hemodpd_membrane::params::ModelParams;
 use hemodpd_membrane::stretch::{self, StretchOptions, StretchPoint};
@@ -170,61 +171,184 @@ pub fn solve(
     Ok(stretch::stretch(&p.model, &p.mesh.vertices, &opts, observer)?)
 }
 
+/// One equilibrium as a frame of `shapes.h5`: step = time = the frame's index (the force's
+/// position in the protocol), the force and diameters as frame scalars.
+fn write_shape(w: &mut TrajectoryWriter, frame: u64, p: &StretchPoint) -> Result<(), hemodpd_io::IoError> {
+    let scalars = [
+        FrameScalar {
+            name: "force",
+            value: p.force,
+            quantity: Quantity::Force,
+        },
+        FrameScalar {
+            name: "axial_diameter",
+            value: p.axial_diameter,
+            quantity: Quantity::Length,
+        },
+        FrameScalar {
+            name: "transverse_diameter",
+            value: p.transverse_diameter,
+            quantity: Quantity::Length,
+        },
+    ];
+    w.append_membrane_frame(frame, frame as f64, &p.positions, None, &scalars)
+}
+
+/// Saves the equilibria reached so far: their results, the last shape (the start of the next
+/// force) and the solve time. The checkpoint's step is the number of forces done.
+fn save_checkpoint(
+    s: &StretchingScenario,
+    ctx: &RunContext,
+    points: &[StretchPoint],
+    seconds: f64,
+) -> Result<(), RunError> {
+    let mut ck = Checkpoint::new(
+        points.len() as u64,
+        points.len() as f64,
+        s.seed,
+        toml::to_string(s).unwrap_or_default(),
+    );
+    ck.set_scalar("scenario_kind", ScalarValue::Str("stretching".into()));
+    ck.set_scalar("base_dir", ScalarValue::Str(s.base_dir.to_string_lossy().into_owned()));
+    ck.set_scalar("solve_seconds", ScalarValue::F64(seconds));
+    let json = serde_json::to_vec(points).map_err(|e| RunError::Output(format!("checkpoint: {e}")))?;
+    ck.insert_u8("points_json", json);
+    if let Some(last) = points.last() {
+        ck.insert_vec3("positions", &last.positions);
+    }
+    ck.save_atomic(ctx.out_dir.join(crate::fluid::CHECKPOINT_FILE))
+        .map_err(out_err)
+}
+
+/// The equilibria a checkpoint holds (the last one with its shape) and the solve time so far.
+fn restore(ck: &Checkpoint, vertices: usize) -> Result<(Vec<StretchPoint>, f64), RunError> {
+    let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
+    let mut points: Vec<StretchPoint> = serde_json::from_slice(ck.u8s("points_json").map_err(bad)?)
+        .map_err(|e| RunError::Output(format!("checkpoint points_json: {e}")))?;
+    if points.len() as u64 != ck.step {
+        return Err(RunError::Output(format!(
+            "checkpoint: step {} but {} equilibria",
+            ck.step,
+            points.len()
+        )));
+    }
+    if let Some(last) = points.last_mut() {
+        last.positions = ck.vec3s("positions", Some(vertices)).map_err(bad)?;
+    }
+    Ok((points, ck.scalar_f64("solve_seconds").map_err(bad)?))
+}
+
 /// The scenario's run: solves, writes the shapes, returns the results object.
 pub fn run(s: &StretchingScenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
+    run_from(s, ctx, None)
+}
+
+/// Runs the scenario, or continues it from a checkpoint. A checkpoint is written after every
+/// force. On Ctrl-C (or at `ctx.stop_at_step` forces done) the force in progress is abandoned
+/// and the run returns [`RunError::Interrupted`]; `hemodpd run --resume DIR` redoes that force
+/// from the last equilibrium and ends with the same results, bit for bit.
+pub fn run_from(
+    s: &StretchingScenario,
+    ctx: &RunContext,
+    checkpoint: Option<&Checkpoint>,
+) -> Result<serde_json::Value, RunError> {
     let t0 = std::time::Instant::now();
     let prepared = prepare(s)?;
-    let mut shapes = if s.output.shapes {
+    let nv = prepared.mesh.vertices.len();
+    let (mut points, earlier_seconds) = match checkpoint {
+        Some(ck) => restore(ck, nv)?,
+        None => (Vec::new(), 0.0),
+    };
+    let done = points.len();
+    let total = s.stretching.forces_pn.len();
+    if done > total {
+        return Err(RunError::Output(format!(
+            "checkpoint with {done} forces done, but the protocol has {total}"
+        )));
+    }
+    let shapes_path = ctx.out_dir.join("shapes.h5");
+    let mut shapes = if !s.output.shapes {
+        None
+    } else if done > 0 && shapes_path.exists() {
+        // keep the frames of the equilibria in the checkpoint, drop any later one
+        Some(TrajectoryWriter::open_append(&shapes_path, done as u64 - 1).map_err(out_err)?)
+    } else {
         let meta = RunMetadata::new(
             "stretching",
             toml::to_string(s).unwrap_or_default(),
             s.seed,
             stretching_units(),
         );
-        let mut w = TrajectoryWriter::create(ctx.out_dir.join("shapes.h5"), &meta).map_err(out_err)?;
+        let mut w = TrajectoryWriter::create(&shapes_path, &meta).map_err(out_err)?;
         w.write_mesh(&prepared.mesh.triangles).map_err(out_err)?;
         w.set_membrane_reference(prepared.model.area0(), prepared.model.volume0())
             .map_err(out_err)?;
+        for (k, p) in points.iter().enumerate() {
+            // resumed without the shapes file: only the last shape is known
+            if !p.positions.is_empty() {
+                write_shape(&mut w, k as u64, p).map_err(out_err)?;
+            }
+        }
         Some(w)
-    } else {
-        None
     };
-    let mut write_error = None;
-    let mut frame = 0u64;
-    let points = solve(s, &prepared, |p| {
+    let opts = StretchOptions {
+        forces: s.stretching.forces_pn[done..].to_vec(),
+        end_fraction: s.stretching.end_fraction,
+        tolerance: s.stretching.tolerance_pn,
+        max_iterations: s.stretching.max_iterations as usize,
+    };
+    let start = points
+        .last()
+        .map_or(prepared.mesh.vertices.clone(), |p| p.positions.clone());
+    let completed = std::cell::Cell::new(done);
+    let stop = || {
+        crate::INTERRUPTED.load(std::sync::atomic::Ordering::Relaxed)
+            || ctx.stop_at_step == Some(completed.get() as u64)
+    };
+    let mut step_error = None;
+    // the checkpoint keeps only the last shape: earlier equilibria are saved without positions
+    let mut saved: Vec<StretchPoint> = points.iter().map(without_positions).collect();
+    let new_points = stretch::stretch_from(&prepared.model, &prepared.mesh.vertices, &start, &opts, stop, |p| {
         if ctx.progress {
             eprintln!(
                 "  F = {:7.2} pN  D_A = {:6.3} µm  D_T = {:6.3} µm  ({} iterations, residual {:.1e} pN)",
                 p.force, p.axial_diameter, p.transverse_diameter, p.iterations, p.residual
             );
         }
-        if let Some(w) = shapes.as_mut() {
-            let scalars = [
-                FrameScalar {
-                    name: "force",
-                    value: p.force,
-                    quantity: Quantity::Force,
-                },
-                FrameScalar {
-                    name: "axial_diameter",
-                    value: p.axial_diameter,
-                    quantity: Quantity::Length,
-                },
-                FrameScalar {
-                    name: "transverse_diameter",
-                    value: p.transverse_diameter,
-                    quantity: Quantity::Length,
-                },
-            ];
-            // one frame per force: step = time = the frame's index; the force is the scalar "force"
-            if let Err(e) = w.append_membrane_frame(frame, frame as f64, &p.positions, None, &scalars) {
-                write_error.get_or_insert(e);
-            }
-            frame += 1;
+        if step_error.is_some() {
+            return;
         }
+        let k = completed.get();
+        if let Some(w) = shapes.as_mut() {
+            if let Err(e) = write_shape(w, k as u64, p).and_then(|_| w.flush()) {
+                step_error = Some(out_err(e));
+                return;
+            }
+        }
+        saved.push(p.clone());
+        if let Err(e) = save_checkpoint(s, ctx, &saved, earlier_seconds + t0.elapsed().as_secs_f64()) {
+            step_error = Some(e);
+        }
+        if let Some(last) = saved.last_mut() {
+            last.positions = Vec::new();
+        }
+        completed.set(k + 1);
     })?;
-    if let Some(e) = write_error {
-        return Err(out_err(e));
+    if let Some(e) = step_error {
+        return Err(e);
+    }
+    points.extend(new_points);
+    if points.len() < total {
+        if let Some(w) = shapes.as_mut() {
+            w.flush().map_err(out_err)?;
+        }
+        if points.is_empty() {
+            save_checkpoint(s, ctx, &points, earlier_seconds + t0.elapsed().as_secs_f64())?;
+        }
+        return Err(RunError::Interrupted {
+            step: points.len() as u64,
+            dir: ctx.out_dir.clone(),
+        });
     }
     let shapes_file = match shapes {
         Some(w) => {
@@ -249,8 +373,17 @@ pub fn run(s: &StretchingScenario, ctx: &RunContext) -> Result<serde_json::Value
         "convergence": format!("static equilibrium by L-BFGS: largest net vertex force < {} pN", s.stretching.tolerance_pn),
         "model": prepared.info,
         "shapes_file": shapes_file,
-        "solve_seconds": t0.elapsed().as_secs_f64(),
+        "resumed_from_step": checkpoint.map(|c| c.step),
+        "checkpoint_file": ctx.out_dir.join(crate::fluid::CHECKPOINT_FILE),
+        "solve_seconds": earlier_seconds + t0.elapsed().as_secs_f64(),
     }))
+}
+
+fn without_positions(p: &StretchPoint) -> StretchPoint {
+    StretchPoint {
+        positions: Vec::new(),
+        ..p.clone()
+    }
 }
 
 /// The stretching run's units: lengths in µm, energies in pN·µm (so forces in pN); the

@@ -1031,3 +1031,51 @@ fn stress_free_on_generated_meshes() {
         }
     }
 }
+
+/// A stretching run split in two (the second part starting from the first part's last
+/// equilibrium) gives the same equilibria bit for bit as one run, and a stop request abandons
+/// the force in progress and returns the equilibria reached so far.
+#[test]
+fn stretching_split_in_two_is_bit_identical() {
+    let Some((topo, x, _, _)) = golden() else { return };
+    let params = ModelParams::coarse_grained(500, 300.0).unwrap();
+    let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2);
+    let model = MembraneModel::new(&topo, &x, &c, ReferenceState::StressFree).unwrap();
+    let opts = |forces: &[f64]| crate::stretch::StretchOptions {
+        forces: forces.to_vec(),
+        end_fraction: 0.05,
+        tolerance: 1e-4,
+        max_iterations: 200_000,
+    };
+    let whole = crate::stretch::stretch(&model, &x, &opts(&[0.0, 60.0, 120.0, 180.0]), |_| {}).unwrap();
+    let first = crate::stretch::stretch(&model, &x, &opts(&[0.0, 60.0]), |_| {}).unwrap();
+    let second = crate::stretch::stretch_from(
+        &model,
+        &x,
+        &first[1].positions,
+        &opts(&[120.0, 180.0]),
+        || false,
+        |_| {},
+    )
+    .unwrap();
+    let split: Vec<_> = first.into_iter().chain(second).collect();
+    assert_eq!(whole, split);
+    // stop after 25 solver iterations in all: the first force (0 pN) needs fewer, so exactly one
+    // equilibrium comes back
+    let polls = std::cell::Cell::new(0usize);
+    let stopped = crate::stretch::stretch_from(
+        &model,
+        &x,
+        &x,
+        &opts(&[0.0, 60.0, 120.0]),
+        || {
+            polls.set(polls.get() + 1);
+            polls.get() > 25 + whole[0].iterations
+        },
+        |_| {},
+    )
+    .unwrap();
+    assert_eq!(stopped.len(), 1);
+    assert_eq!(stopped[0], whole[0]);
+    assert!(crate::stretch::stretch_from(&model, &x, &x[1..], &opts(&[0.0]), || false, |_| {}).is_err());
+}
