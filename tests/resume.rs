@@ -219,17 +219,23 @@ fn small_walled(file: &str, dir: &Path, sets: &[&str]) -> Scenario {
     hemodpd_scenario::load(&path, &all.iter().map(|s| s.to_string()).collect::<Vec<_>>()).unwrap()
 }
 
-/// Wall scenarios resume bit-identically: a tube run interrupted in the adaptation phase
-/// (step 73) and again while sampling (step 237), resumed each time on another thread count,
-/// ends with the uninterrupted run's particles, wall forces, adaptation history, profile and
-/// viscosity to the last bit, and the same trajectory frames; a Couette run interrupted while
+/// Wall scenarios resume bit-identically: a tube run with the flow controller, interrupted in
+/// the adaptation phase (step 73) and again while sampling (step 237), resumed each time on
+/// another thread count, ends with the uninterrupted run's particles, wall forces, adaptation
+/// history, controller history, profile and viscosity to the last bit, and the same trajectory frames; a Couette run interrupted while
 /// sampling gives the same wall stress and viscosity.
 #[test]
 fn wall_scenarios_resume_bit_identically() {
     let cases: [(&str, &[&str], &[u64], &str); 2] = [
         (
             "poiseuille-tube.toml",
-            &["tube.radius=2.5", "tube.length=4.0", "tube.body_force=0.2"],
+            // the flow controller's state goes through the checkpoints too
+            &[
+                "tube.radius=2.5",
+                "tube.length=4.0",
+                "tube.mean_velocity=0.3",
+                "tube.flow_control_every=20",
+            ],
             &[73, 237],
             "viscosity",
         ),
@@ -270,6 +276,7 @@ fn wall_scenarios_resume_bit_identically() {
         assert_eq!(full["profile"], resumed["profile"], "{file}: sampled profile");
         assert_eq!(full["near_wall"], resumed["near_wall"], "{file}: near-wall density");
         assert_eq!(full["reflections"], resumed["reflections"], "{file}: reflections");
+        assert_eq!(full["flow_control"], resumed["flow_control"], "{file}: flow controller");
         assert!(full["reflections"].as_u64().unwrap() > 0);
         let (pa, va) = final_arrays(a.path());
         let (pb, vb) = final_arrays(b.path());

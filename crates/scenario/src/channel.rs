@@ -135,6 +135,41 @@ pub struct Measurement {
     pub impulse_prev: [f64; 2],
     /// Wall-clock seconds of the stepping so far (over all sessions of a resumed run).
     pub stepping_seconds: f64,
+    /// The tube's flow controller, when the scenario asks for a mean velocity.
+    pub flow_control: Option<FlowControl>,
+}
+
+/// Bessel J0's first zero: the slowest viscous mode of a tube decays as exp(−η j0² t/(n R²)).
+const J0_FIRST_ZERO: f64 = 2.404_825_557_695_773;
+
+/// The tube's flow controller: a proportional–integral law on the body force f that holds a
+/// target mean axial velocity U of the fluid. With ū the fluid's mean axial velocity averaged
+/// over the last M steps, every M steps:
+///
+/// e = U − ū,  I ← I + e·MΔt/τ_v,  f = 8η/(nR²) · (e + I),
+///
+/// where 8η/(nR²) is the force per unit mean velocity of Poiseuille flow and τ_v = nR²/(η j0²)
+/// the tube's slowest viscous time. I starts at 0, so the first force is the Poiseuille estimate
+/// 8ηU/(nR²). For a flow that responds like one lag of time τ_v the loop is critically damped
+/// (a double pole at −1/τ_v): no overshoot, settled to 1% in about 7τ_v. η is the scenario's
+/// reference viscosity, or 1 when none is given; a PI loop on a lag stays stable for any
+/// positive gains, so a poor guess only changes the speed.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FlowControl {
+    /// Target mean velocity U.
+    pub target: f64,
+    /// Current body force f.
+    pub force: f64,
+    /// Integral term I (velocity units).
+    pub integral: f64,
+    /// Σ ū and steps of the current window.
+    pub window_sum: f64,
+    pub window_steps: u64,
+    /// (step, ū over the window, f after the update) per update.
+    pub history: Vec<[f64; 3]>,
+    /// Σ f and steps over the sampling phase (the mean force the profile saw).
+    pub sampling_force_sum: f64,
+    pub sampling_steps: u64,
 }
 
 /// The geometry a walled run measures in.
@@ -147,6 +182,8 @@ enum Channel {
         length: f64,
         g: f64,
         reference_viscosity: Option<f64>,
+        /// Target mean velocity and controller period, when controlled.
+        mean_velocity: Option<(f64, u64)>,
     },
     /// Plates at z = `lower` and `lower + gap`, moving at ∓`speed` along x; `area` = Lx·Ly.
     Couette {
@@ -172,6 +209,8 @@ struct Plan<'a> {
     channel: Channel,
     /// µm per rc, for reporting lengths in µm too.
     length_scale_um_per_rc: Option<f64>,
+    /// `tube.body_force` as written (reported as unused when the flow controller sets the force).
+    tube_body_force: Option<f64>,
 }
 
 impl Plan<'_> {
@@ -193,7 +232,21 @@ impl Plan<'_> {
     }
     fn body_force(&self) -> DVec3 {
         match self.channel {
-            Channel::Tube { g, .. } => DVec3::new(0.0, 0.0, g),
+            Channel::Tube {
+                g,
+                radius,
+                reference_viscosity,
+                mean_velocity,
+                ..
+            } => match mean_velocity {
+                // the flow controller's first force (see FlowControl)
+                Some((u, _)) => DVec3::new(
+                    0.0,
+                    0.0,
+                    8.0 * reference_viscosity.unwrap_or(1.0) * u / (self.fluid.density * radius * radius),
+                ),
+                None => DVec3::new(0.0, 0.0, g),
+            },
             Channel::Couette { .. } => DVec3::ZERO,
         }
     }
@@ -335,9 +388,13 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(Simulation<Walls>, Measureme
         .and_then(|w| w.with_state(ws))
         .map_err(engine_err)?;
     let mut sim = Simulation::from_state(state, ext).map_err(engine_err)?;
-    sim.set_body_force(walls::FLUID_TYPE as usize, plan.body_force())
-        .map_err(engine_err)?;
     let m: Measurement = json_from_checkpoint(ck, "measurement_json")?;
+    let force = m
+        .flow_control
+        .as_ref()
+        .map_or(plan.body_force(), |c| DVec3::new(0.0, 0.0, c.force));
+    sim.set_body_force(walls::FLUID_TYPE as usize, force)
+        .map_err(engine_err)?;
     if m.profile.count.len() != BLOCKS || m.profile.count.iter().any(|c| c.len() != plan.run.profile_bins) {
         return Err(RunError::Output(
             "checkpoint: the sampled profile does not match run.profile_bins".into(),
@@ -413,6 +470,51 @@ fn sample(plan: &Plan, sim: &Simulation<Walls>, m: &mut Measurement, i: u64) {
     }
 }
 
+/// The flow controller's part of a step: accumulates the fluid's mean axial velocity and, every
+/// `every` steps, updates the body force (`step` steps done, the last one included).
+fn control_flow(plan: &Plan, sim: &mut Simulation<Walls>, c: &mut FlowControl, step: u64) -> Result<(), RunError> {
+    let Channel::Tube {
+        radius,
+        reference_viscosity,
+        mean_velocity: Some((_, every)),
+        ..
+    } = plan.channel
+    else {
+        return Ok(());
+    };
+    let p = sim.particles();
+    let (mut sum, mut n) = (0.0, 0usize);
+    for k in 0..p.len() {
+        if p.ptype[k] == walls::FLUID_TYPE {
+            sum += p.vel[k].z;
+            n += 1;
+        }
+    }
+    c.window_sum += sum / n.max(1) as f64;
+    c.window_steps += 1;
+    if step % every == 0 {
+        let mean = c.window_sum / c.window_steps as f64;
+        let eta = reference_viscosity.unwrap_or(1.0);
+        let n_r2 = plan.fluid.density * radius * radius;
+        let tau_v = n_r2 / (eta * J0_FIRST_ZERO * J0_FIRST_ZERO);
+        let e = c.target - mean;
+        c.integral += e * every as f64 * plan.run.timestep / tau_v;
+        c.force = 8.0 * eta / n_r2 * (e + c.integral);
+        if !c.force.is_finite() {
+            return Err(RunError::Engine(format!(
+                "flow controller: the body force became {} at step {step} (mean velocity {mean})",
+                c.force
+            )));
+        }
+        c.history.push([step as f64, mean, c.force]);
+        c.window_sum = 0.0;
+        c.window_steps = 0;
+        sim.set_body_force(walls::FLUID_TYPE as usize, DVec3::new(0.0, 0.0, c.force))
+            .map_err(engine_err)?;
+    }
+    Ok(())
+}
+
 /// Runs the schedule from step 0 or from a checkpoint; returns the simulation after the last
 /// step, the sampled sums and the force-profile source.
 fn drive(
@@ -424,11 +526,28 @@ fn drive(
         Some(ck) => restore(plan, ck)?,
         None => {
             let (sim, source) = build(plan)?;
+            let flow_control = match plan.channel {
+                Channel::Tube {
+                    mean_velocity: Some((target, _)),
+                    ..
+                } => Some(FlowControl {
+                    target,
+                    force: plan.body_force().z,
+                    integral: 0.0,
+                    window_sum: 0.0,
+                    window_steps: 0,
+                    history: Vec::new(),
+                    sampling_force_sum: 0.0,
+                    sampling_steps: 0,
+                }),
+                _ => None,
+            };
             let m = Measurement {
                 profile: ProfileSums::new(plan.run.profile_bins),
                 stress: Vec::new(),
                 impulse_prev: [0.0; 2],
                 stepping_seconds: 0.0,
+                flow_control,
             };
             (sim, m, source)
         }
@@ -515,6 +634,14 @@ fn drive(
             sample(plan, &sim, &mut m, step - sample_start);
         }
         step += 1;
+        if let Some(c) = m.flow_control.as_mut() {
+            if step > sample_start {
+                // the force the step just done was driven by
+                c.sampling_force_sum += sim.field().types()[walls::FLUID_TYPE as usize].body_force.z;
+                c.sampling_steps += 1;
+            }
+            control_flow(plan, &mut sim, c, step)?;
+        }
         if step % report_every == 0 {
             progress.update(step, sim.time());
         }
@@ -624,9 +751,15 @@ fn tube_results(
         length,
         g,
         reference_viscosity,
+        ..
     } = plan.channel
     else {
         unreachable!("tube results of a tube plan")
+    };
+    // with the flow controller on, the profile saw the mean force of the sampling phase
+    let g = match &m.flow_control {
+        Some(c) if c.sampling_steps > 0 => c.sampling_force_sum / c.sampling_steps as f64,
+        _ => g,
     };
     let nb = plan.run.profile_bins;
     let w = radius / nb as f64;
@@ -723,6 +856,15 @@ fn tube_results(
         "profile": { "r": rc, "v_z": v, "parabola": fit, "interior_parabola": fit_in, "density": rho, "samples": samples },
         "parabola": { "centre_velocity": a, "curvature": curv, "slip_velocity": a - curv * radius * radius, "slip_fraction": slip, "viscosity_whole_profile": plan.fluid.density * g / (4.0 * curv) },
         "reference_parabola": reference_json,
+        "flow_control": m.flow_control.as_ref().map(|c| {
+            let (count, velocity) = (m.profile.count.iter().flatten().sum::<f64>(), m.profile.velocity.iter().flatten().sum::<f64>());
+            json!({ "target_mean_velocity": c.target, "measured_mean_velocity": velocity / count.max(1.0),
+                    "body_force_mean": g, "body_force_final": c.force, "updates": c.history.len(),
+                    "tube_body_force_not_used": plan.tube_body_force,
+                    "history": c.history.iter().map(|h| json!({"step": h[0], "mean_velocity": h[1], "body_force": h[2]})).collect::<Vec<_>>(),
+                    "law": "PI every flow_control_every steps: e = U − ū, I += e·MΔt/τ_v, f = 8η/(nR²)·(e + I), τ_v = nR²/(η j0²)" })
+        }),
+        "body_force": g,
         "viscosity": if enough { json!({ "value": eta_interior, "standard_error": eta_se, "blocks": eta_blocks, "fit_radius": r_in, "fit_bins": interior_bins, "interior_density": interior_density(&cnt, samples),
             "method": "η = n g / (4c): c the curvature of v = a − c r² fitted over r < R − 2rc, n the measured density there; standard error over the time blocks" }) }
             else { json!({ "value": null, "note": format!("the tube interior r < R − 2rc = {r_in:.2} holds {interior_bins} profile bins; the fit needs {MIN_INTERIOR_BINS} (a larger radius or more run.profile_bins)") }) },
@@ -822,10 +964,12 @@ fn tube_plan(s: &TubeScenario) -> Plan<'_> {
         channel: Channel::Tube {
             radius: t.radius,
             length: t.length,
-            g: t.body_force,
+            g: t.body_force.unwrap_or(0.0),
             reference_viscosity: t.reference_viscosity,
+            mean_velocity: t.mean_velocity.map(|u| (u, t.flow_control_every)),
         },
         length_scale_um_per_rc: t.length_scale_um_per_rc,
+        tube_body_force: t.body_force,
     }
 }
 
@@ -859,6 +1003,7 @@ fn couette_plan(s: &CouetteScenario) -> Plan<'_> {
             area: pl.width[0] * pl.width[1],
         },
         length_scale_um_per_rc: None,
+        tube_body_force: None,
     }
 }
 

@@ -237,6 +237,9 @@ impl Default for WallOutput {
 fn one_u64() -> u64 {
     1
 }
+fn hundred() -> u64 {
+    100
+}
 fn twenty() -> u64 {
     20
 }
@@ -408,8 +411,17 @@ pub struct TubeSection {
     pub radius: f64,
     /// Length along the (periodic) axis z, rc (≥ 3).
     pub length: f64,
-    /// Body force per fluid particle along the axis (model units; drives the flow).
-    pub body_force: f64,
+    /// Body force per fluid particle along the axis (model units; drives the flow). Needed
+    /// unless `mean_velocity` is set, which takes precedence (the controller sets the force).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub body_force: Option<f64>,
+    /// Target mean axial velocity of the fluid (model units, optional). When set, a controller
+    /// adjusts the body force every `flow_control_every` steps to hold it (docs/walls.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_velocity: Option<f64>,
+    /// Steps between updates of the flow controller (default 100).
+    #[serde(default = "hundred")]
+    pub flow_control_every: u64,
     /// µm per rc, to report lengths in µm as well (optional).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub length_scale_um_per_rc: Option<f64>,
@@ -905,13 +917,23 @@ fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
         1e4,
         "a length of at least 3 cut-offs",
     )?;
-    c.range(
+    match (s.tube.body_force, s.tube.mean_velocity) {
+        (None, None) => {
+            return Err(ScenarioError::Missing {
+                file: file.into(),
+                key: "tube.body_force".into(),
+                what: "the body force per fluid particle (model units, e.g. 0.05), or tube.mean_velocity for a flow held at a mean velocity".into(),
+            })
+        }
+        (Some(g), _) => c.range(
         "tube.body_force",
-        s.tube.body_force,
+        g,
         -10.0,
         10.0,
         "a body force between −10 and 10 (model units; 0.05–0.2 keeps the flow laminar and the shear rate moderate)",
-    )?;
+    )?,
+        (None, Some(_)) => {}
+    }
     if let Some(l) = s.tube.length_scale_um_per_rc {
         c.range(
             "tube.length_scale_um_per_rc",
@@ -920,6 +942,22 @@ fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
             1e3,
             "µm per rc between 1e-3 and 1e3",
         )?;
+    }
+    if let Some(u) = s.tube.mean_velocity {
+        if !(u.is_finite() && u != 0.0 && u.abs() <= 10.0) {
+            return Err(c.fail(
+                "tube.mean_velocity",
+                u,
+                "a non-zero mean velocity between −10 and 10 (model units; ≲ 1 keeps the Mach number low)",
+            ));
+        }
+    }
+    if s.tube.flow_control_every == 0 || s.tube.flow_control_every > 1_000_000 {
+        return Err(c.fail(
+            "tube.flow_control_every",
+            s.tube.flow_control_every,
+            "a number of steps from 1 to 1000000",
+        ));
     }
     if let Some(eta) = s.tube.reference_viscosity {
         c.range(
