@@ -288,6 +288,16 @@ fn wall_scenarios_resume_bit_identically() {
             expected,
             "{file}: frames lost or duplicated by the resume"
         );
+        // resuming a finished run (its checkpoint is at the last step) reports the same results
+        let (_, again) = in_pool(1, || {
+            hemodpd_scenario::resume(b.path(), &RunContext::new(b.path(), 1, false))
+        })
+        .unwrap();
+        assert_eq!(
+            again["near_wall"], full["near_wall"],
+            "{file}: near-wall density after a resume at the end"
+        );
+        assert_eq!(bits(&again[key]["value"]), bits(&full[key]["value"]), "{file}");
         // the force file was written after adaptation, in each run's own directory
         assert!(a.path().join("wall_force_profile.csv").exists());
         assert!(b.path().join("wall_force_profile.csv").exists());

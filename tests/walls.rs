@@ -634,10 +634,14 @@ fn walls_restart_is_bit_identical() {
     let saved = serde_json::to_string(&ext.state()).unwrap();
     let shape = *ext.shape();
     let cfg = ext.config().clone();
+    let domain = PeriodicBox::new(state.config.box_lengths).unwrap();
     let restored = Walls::new(shape, cfg)
         .unwrap()
-        .with_state(serde_json::from_str::<WallsState>(&saved).unwrap())
+        .with_state(serde_json::from_str::<WallsState>(&saved).unwrap(), &domain)
         .unwrap();
+    // the measured profile is there before any step
+    assert!(!ext.relative_density().is_empty());
+    assert_eq!(restored.relative_density(), ext.relative_density());
     let mut second = Simulation::from_state(state, restored).unwrap();
     second.run(120).unwrap();
     let (a, b) = (fingerprint(&whole), fingerprint(&second));
@@ -649,7 +653,7 @@ fn walls_restart_is_bit_identical() {
     let mut wrong = ext_state_with_bins(&a.1, 3);
     assert!(Walls::new(shape, WallConfig::default())
         .unwrap()
-        .with_state(wrong.clone())
+        .with_state(wrong.clone(), &domain)
         .is_err());
     wrong.forces[0] = f64::NAN;
     assert!(Walls::new(
@@ -660,7 +664,7 @@ fn walls_restart_is_bit_identical() {
         }
     )
     .unwrap()
-    .with_state(wrong)
+    .with_state(wrong, &domain)
     .is_err());
 }
 

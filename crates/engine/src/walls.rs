@@ -712,8 +712,9 @@ impl Walls {
         }
     }
 
-    /// Continues from a saved state (its bin and surface counts must match these walls).
-    pub fn with_state(mut self, state: WallsState) -> Result<Self, EngineError> {
+    /// Continues from a saved state in the box `domain` (its bin and surface counts must match
+    /// these walls). The measured profile is available at once, before any step.
+    pub fn with_state(mut self, state: WallsState, domain: &PeriodicBox) -> Result<Self, EngineError> {
         let nb = self.config.bins;
         if state.forces.len() != nb || state.period_counts.len() != nb || state.total_counts.len() != nb {
             return Err(EngineError::invalid(
@@ -753,6 +754,7 @@ impl Walls {
         self.reflections = state.reflections;
         self.impulse = state.impulse.into_iter().map(DVec3::from_array).collect();
         self.history = state.history;
+        self.volumes = self.layer_volumes(domain);
         Ok(self)
     }
 
@@ -840,12 +842,17 @@ impl Walls {
             .collect()
     }
 
+    /// Volumes of the near-wall bins in `domain`.
+    fn layer_volumes(&self, domain: &PeriodicBox) -> Vec<Real> {
+        let w = self.config.rc / self.config.bins as Real;
+        (0..self.config.bins)
+            .map(|k| self.shape.layer_volume(domain, k as Real * w, (k + 1) as Real * w))
+            .collect()
+    }
+
     fn init(&mut self, s: &StateMut<'_>) {
         if self.volumes.is_empty() {
-            let w = self.config.rc / self.config.bins as Real;
-            self.volumes = (0..self.config.bins)
-                .map(|k| self.shape.layer_volume(s.domain, k as Real * w, (k + 1) as Real * w))
-                .collect();
+            self.volumes = self.layer_volumes(s.domain);
         }
         if self.rho0.is_none() {
             let types = s.field.types();

@@ -125,6 +125,10 @@ pub fn stretch_from(
     // the first step of a fresh L-BFGS memory moves no vertex more than 1e-4 cell diameters
     let mut solver = Lbfgs::new(rest.len(), 10, 1e-4 * d0);
     for &force in &opts.forces {
+        if stop() {
+            // also between forces: a force already in equilibrium takes no solver iteration
+            return Ok(out);
+        }
         let per_vertex = force / high.len() as f64;
         let mut ext = vec![DVec3::ZERO; rest.len()];
         for &i in &high {

@@ -23,7 +23,7 @@ use crate::fluid::{out_err, particles_from_checkpoint, particles_into_checkpoint
 use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::walls::{self, WallConfig, WallForceProfile, WallSetup, WallShape, Walls, WallsState};
-use hemodpd_engine::{init, observe, ForceField, PairParams, SimConfig, SimState, Simulation};
+use hemodpd_engine::{init, observe, ForceField, PairParams, PeriodicBox, SimConfig, SimState, Simulation};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{RunMetadata, TrajectoryWriter};
 use serde::{Deserialize, Serialize};
@@ -151,9 +151,10 @@ const J0_FIRST_ZERO: f64 = 2.404_825_557_695_773;
 /// where 8η/(nR²) is the force per unit mean velocity of Poiseuille flow and τ_v = nR²/(η j0²)
 /// the tube's slowest viscous time. I starts at 0, so the first force is the Poiseuille estimate
 /// 8ηU/(nR²). For a flow that responds like one lag of time τ_v the loop is critically damped
-/// (a double pole at −1/τ_v): no overshoot, settled to 1% in about 7τ_v. η is the scenario's
-/// reference viscosity, or 1 when none is given; a PI loop on a lag stays stable for any
-/// positive gains, so a poor guess only changes the speed.
+/// (a double pole at −1/τ_v): no overshoot, settled to 1% in about 7τ_v. The law acts on window
+/// means, one window late, so the scenario keeps MΔt ≤ τ_v/2 (validated). η is the scenario's
+/// reference viscosity, or 1 when none is given; a run whose mean velocity runs away stops with
+/// an error.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FlowControl {
     /// Target mean velocity U.
@@ -384,8 +385,9 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(Simulation<Walls>, Measureme
         step: ck.step,
     };
     let ws: WallsState = json_from_checkpoint(ck, "walls_state_json")?;
+    let domain = PeriodicBox::new(plan.box_lengths).map_err(engine_err)?;
     let ext = Walls::new(plan.shape, plan.wall_config())
-        .and_then(|w| w.with_state(ws))
+        .and_then(|w| w.with_state(ws, &domain))
         .map_err(engine_err)?;
     let mut sim = Simulation::from_state(state, ext).map_err(engine_err)?;
     let m: Measurement = json_from_checkpoint(ck, "measurement_json")?;
@@ -395,7 +397,8 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(Simulation<Walls>, Measureme
         .map_or(plan.body_force(), |c| DVec3::new(0.0, 0.0, c.force));
     sim.set_body_force(walls::FLUID_TYPE as usize, force)
         .map_err(engine_err)?;
-    if m.profile.count.len() != BLOCKS || m.profile.count.iter().any(|c| c.len() != plan.run.profile_bins) {
+    let bins_ok = |v: &Vec<Vec<f64>>| v.len() == BLOCKS && v.iter().all(|c| c.len() == plan.run.profile_bins);
+    if !bins_ok(&m.profile.count) || !bins_ok(&m.profile.velocity) || m.profile.samples.len() != BLOCKS {
         return Err(RunError::Output(
             "checkpoint: the sampled profile does not match run.profile_bins".into(),
         ));
@@ -500,10 +503,10 @@ fn control_flow(plan: &Plan, sim: &mut Simulation<Walls>, c: &mut FlowControl, s
         let e = c.target - mean;
         c.integral += e * every as f64 * plan.run.timestep / tau_v;
         c.force = 8.0 * eta / n_r2 * (e + c.integral);
-        if !c.force.is_finite() {
+        if !c.force.is_finite() || mean.abs() > 10.0 * c.target.abs() + 1.0 {
             return Err(RunError::Engine(format!(
-                "flow controller: the body force became {} at step {step} (mean velocity {mean})",
-                c.force
+                "flow controller diverged at step {step}: mean velocity {mean:.4} for a target of {}, body force {:.4e}; lower tube.flow_control_every or set tube.reference_viscosity closer to the fluid's viscosity",
+                c.target, c.force
             )));
         }
         c.history.push([step as f64, mean, c.force]);

@@ -495,14 +495,20 @@ pub fn load(path: &Path, sets: &[String]) -> Result<Scenario, ScenarioError> {
         source,
     })?;
     let mut s = load_str(&text, &file, sets)?;
-    let dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    // absolute, so that a checkpoint resumed from another working directory still finds the
+    // files the scenario names
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let dir = std::path::absolute(&dir).unwrap_or(dir);
     match &mut s {
         Scenario::PoiseuilleTube(t) => t.base_dir = dir.clone(),
         Scenario::Couette(t) => t.base_dir = dir.clone(),
         _ => {}
     }
     if let Scenario::Stretching(st) = &mut s {
-        st.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
+        st.base_dir = dir.clone();
         if let Some(m) = &st.membrane.mesh_file {
             let full = st.base_dir.join(m);
             if !full.exists() {
@@ -892,6 +898,21 @@ fn validate_wall_common(
         return Err(c.fail("walls.update_every", 0, "a positive number of steps"));
     }
     validate_stepping(*c, r.timestep, 0.05, r.lambda, r.steps, r.sample_every)?;
+    let adapt = if w.adaptive {
+        w.adapt_iterations.checked_mul(w.update_every)
+    } else {
+        Some(0)
+    };
+    let total = adapt
+        .and_then(|a| a.checked_add(r.flow_steps))
+        .and_then(|a| a.checked_add(r.steps));
+    if total.is_none_or(|t| t > 1_000_000_000_000) {
+        return Err(c.fail(
+            "walls.adapt_iterations",
+            w.adapt_iterations,
+            "a schedule of at most 1e12 steps in all (adapt_iterations × update_every + run.flow_steps + run.steps)",
+        ));
+    }
     if r.profile_bins < 2 || r.profile_bins > 1000 {
         return Err(c.fail("run.profile_bins", r.profile_bins, "an integer from 2 to 1000"));
     }
@@ -958,6 +979,22 @@ fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
             s.tube.flow_control_every,
             "a number of steps from 1 to 1000000",
         ));
+    }
+    if s.tube.mean_velocity.is_some() {
+        // the controller's window must be short against the tube's viscous time τ_v = nR²/(η j0²),
+        // or its one-window delay makes the loop oscillate (docs/walls.md)
+        let eta = s.tube.reference_viscosity.unwrap_or(1.0);
+        let tau_v = s.fluid.density * s.tube.radius * s.tube.radius / (eta * 2.404_825_557_695_773f64.powi(2));
+        let max_every = (0.5 * tau_v / s.run.timestep).floor().max(1.0) as u64;
+        if s.tube.flow_control_every > max_every {
+            return Err(c.fail(
+                "tube.flow_control_every",
+                s.tube.flow_control_every,
+                &format!(
+                    "at most {max_every} steps here: half the tube's viscous time nR²/(η j0²) = {tau_v:.3} over Δt"
+                ),
+            ));
+        }
     }
     if let Some(eta) = s.tube.reference_viscosity {
         c.range(

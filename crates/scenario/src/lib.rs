@@ -81,7 +81,7 @@ pub enum RunError {
     Output(String),
     #[error("{path}: {source}")]
     Io { path: PathBuf, source: std::io::Error },
-    #[error("interrupted at step {step}: checkpoint and final frame written; continue with `hemodpd run --resume {}`", dir.display())]
+    #[error("interrupted at step {step}: the state is saved in {}/checkpoint.h5 (and a final frame in the trajectory, if the run writes one); continue with `hemodpd run --resume {}`", dir.display(), dir.display())]
     Interrupted { step: u64, dir: PathBuf },
     #[error("cannot resume from {dir}: {message}")]
     Resume { dir: PathBuf, message: String },

@@ -301,8 +301,10 @@ pub fn run_from(
         .last()
         .map_or(prepared.mesh.vertices.clone(), |p| p.positions.clone());
     let completed = std::cell::Cell::new(done);
+    let failed = std::cell::Cell::new(false);
     let stop = || {
-        crate::INTERRUPTED.load(std::sync::atomic::Ordering::Relaxed)
+        failed.get()
+            || crate::INTERRUPTED.load(std::sync::atomic::Ordering::Relaxed)
             || ctx.stop_at_step == Some(completed.get() as u64)
     };
     let mut step_error = None;
