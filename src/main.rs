@@ -496,6 +496,16 @@ fn render(trajectory: &Path, frames: &[usize], columns: usize, edges: bool, outp
 
 fn analyze(trajectory: &Path, out: Option<PathBuf>, plot: bool) -> Result<()> {
     use hemodpd_io::analysis;
+    // a fluid-only file (dpd-fluid, the wall scenarios) has nothing for this command
+    if let Ok(r) = hemodpd_io::TrajectoryReader::open(trajectory) {
+        if !r.has_membrane() {
+            bail!(
+                "{} holds no membrane (fluid frames only: {}); `hemodpd analyze` measures cell shapes. Open fluid trajectories in ParaView (the .xmf beside the file) or with h5py (docs/output.md)",
+                trajectory.display(),
+                r.fluid_frames().unwrap_or(0)
+            );
+        }
+    }
     let a = analysis::analyze_file(trajectory, &analysis::AnalysisOptions::default())?;
     let out = out.unwrap_or_else(|| {
         let stem = trajectory

@@ -130,3 +130,37 @@ fn analyze_a_stretching_trajectory() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("bad.h5") && !err.contains("panicked"), "{err}");
 }
+
+/// `analyze` on a fluid-only trajectory (a `dpd-fluid` run) says so and exits with 1, instead
+/// of reporting a missing dataset.
+#[test]
+fn analyze_refuses_a_fluid_only_trajectory_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let scen = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/dpd-fluid.toml");
+    let out_dir = dir.path().join("run");
+    let run = hemodpd(&[
+        "run",
+        scen.to_str().unwrap(),
+        "--set",
+        "fluid.box_size=[4.0, 4.0, 4.0]",
+        "--set",
+        "run.equilibration_steps=10",
+        "--set",
+        "run.steps=20",
+        "--set",
+        "run.sample_every=10",
+        "--set",
+        "output.trajectory_every_steps=10",
+        "--quiet",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let out = hemodpd(&["analyze", out_dir.join("trajectory.h5").to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("holds no membrane") && err.contains("fluid frames only: 3"),
+        "{err}"
+    );
+}
