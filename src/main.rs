@@ -363,26 +363,70 @@ fn sweep(
             eprintln!("[{}/{}] {label}", i + 1, combos.len());
         }
         let summary = run_one(path, &all, Some(dir.clone()), threads, quiet)?;
-        let mills = &summary["results"]["mills2004"];
+        let results = &summary["results"];
+        let metrics: serde_json::Map<String, serde_json::Value> = sweep_columns(summary["scenario_kind"].as_str())
+            .iter()
+            .map(|(name, pointer)| (name.to_string(), results.pointer(pointer).cloned().unwrap_or_default()))
+            .collect();
+        let mills = &results["mills2004"];
         runs.push(json!({
             "label": label, "overrides": all, "dir": dir, "wall_time_s": summary["wall_time_s"],
             "rms_axial_um": mills["rms_axial_um"], "rms_transverse_um": mills["rms_transverse_um"],
+            "scenario_kind": summary["scenario_kind"], "metrics": metrics,
         }));
     }
     let sweep = json!({ "scenario_file": path, "axes": axes, "runs": runs });
     hemodpd_io::summary::write_json_atomic(out_dir.join("sweep.json"), &sweep)?;
-    println!("{:<40} {:>10} {:>12} {:>12}", "run", "wall (s)", "RMS D_A", "RMS D_T");
+    let columns: Vec<&str> = sweep_columns(runs.first().and_then(|r| r["scenario_kind"].as_str()))
+        .iter()
+        .map(|(name, _)| *name)
+        .collect();
+    print!("{:<40} {:>10}", "run", "wall (s)");
+    for c in &columns {
+        print!(" {c:>14}");
+    }
+    println!();
     for r in &runs {
-        let f = |k: &str| r[k].as_f64().map(|v| format!("{v:.3}")).unwrap_or_else(|| "-".into());
-        println!(
-            "{:<40} {:>10} {:>12} {:>12}",
+        print!(
+            "{:<40} {:>10}",
             r["label"].as_str().unwrap_or(""),
-            f("wall_time_s"),
-            f("rms_axial_um"),
-            f("rms_transverse_um")
+            r["wall_time_s"].as_f64().map_or("-".into(), |v| format!("{v:.3}"))
         );
+        for c in &columns {
+            let v = r["metrics"][c].as_f64().map_or("-".into(), |v| format!("{v:.4}"));
+            print!(" {v:>14}");
+        }
+        println!();
     }
     Ok(())
+}
+
+/// The figures a sweep tabulates for each scenario kind: (column, JSON pointer into `results`).
+fn sweep_columns(kind: Option<&str>) -> &'static [(&'static str, &'static str)] {
+    match kind {
+        Some("stretching") => &[
+            ("RMS D_A (um)", "/mills2004/rms_axial_um"),
+            ("RMS D_T (um)", "/mills2004/rms_transverse_um"),
+        ],
+        Some("dpd-fluid") => &[
+            ("kBT", "/temperature/mean"),
+            ("pressure", "/pressure/mean"),
+            ("particle-steps/s", "/throughput_particle_steps_per_s"),
+        ],
+        Some("poiseuille-tube") => &[
+            ("viscosity", "/viscosity/value"),
+            ("viscosity SE", "/viscosity/standard_error"),
+            ("slip", "/parabola/slip_fraction"),
+            ("max |rho/rho0-1|", "/near_wall/max_density_deviation"),
+        ],
+        Some("couette") => &[
+            ("viscosity", "/viscosity/value"),
+            ("viscosity SE", "/viscosity/standard_error"),
+            ("slip lower", "/line/slip_fraction_lower"),
+            ("slip upper", "/line/slip_fraction_upper"),
+        ],
+        _ => &[],
+    }
 }
 
 /// Splits "a,b,[1, 2],c" at top-level commas.

@@ -164,3 +164,44 @@ fn analyze_refuses_a_fluid_only_trajectory_clearly() {
         "{err}"
     );
 }
+
+/// `sweep` runs every combination of the varied values, writes `sweep.json` with the figures of
+/// the scenario's kind for each run, and prints them as a table.
+#[test]
+fn sweep_runs_every_combination_and_tabulates_the_kinds_figures() {
+    let dir = tempfile::tempdir().unwrap();
+    let scen = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/dpd-fluid.toml");
+    let out = hemodpd(&[
+        "sweep",
+        scen.to_str().unwrap(),
+        "--vary",
+        "run.timestep=0.01,0.02",
+        "--vary",
+        "seed=1,2",
+        "--set",
+        "fluid.box_size=[4.0, 4.0, 4.0]",
+        "--set",
+        "run.equilibration_steps=20",
+        "--set",
+        "run.steps=40",
+        "--set",
+        "run.sample_every=2",
+        "--quiet",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(table.contains("kBT") && table.contains("pressure"), "{table}");
+    let sweep: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("sweep.json")).unwrap()).unwrap();
+    let runs = sweep["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 4);
+    for r in runs {
+        let t = r["metrics"]["kBT"].as_f64().unwrap();
+        assert!(t > 0.5 && t < 1.5, "{r}");
+        assert!(std::path::Path::new(r["dir"].as_str().unwrap())
+            .join("summary.json")
+            .exists());
+    }
+}
