@@ -744,10 +744,8 @@ fn fit_parabola(r: &[f64], v: &[f64], count: &[f64], r_max: f64) -> (f64, f64) {
 fn tube_results(
     plan: &Plan,
     ctx: &RunContext,
-    mut sim: Simulation<Walls>,
+    sim: &Simulation<Walls>,
     m: &Measurement,
-    source: &str,
-    resumed: Option<u64>,
 ) -> Result<serde_json::Value, RunError> {
     let Channel::Tube {
         radius,
@@ -771,7 +769,6 @@ fn tube_results(
     let (cnt, v) = m.profile.mean(0..BLOCKS);
     let ring = |b: usize| std::f64::consts::PI * (((b + 1) as f64 * w).powi(2) - (b as f64 * w).powi(2)) * length;
     let rho: Vec<f64> = (0..nb).map(|b| cnt[b] / (samples.max(1) as f64 * ring(b))).collect();
-    let rho0 = sim.extension().target_density().unwrap_or(plan.fluid.density);
     // whole profile: the parabola the slip is measured against
     let (a, curv) = fit_parabola(&rc, &v, &cnt, radius);
     let slip = (a - curv * radius * radius) / a;
@@ -832,30 +829,16 @@ fn tube_results(
         "r,v_z,parabola,interior_parabola,reference_parabola,density",
         &rows,
     )?;
-    let near = sim.extension().relative_density();
-    let dev = near.iter().map(|x| (x - 1.0).abs()).fold(0.0, f64::max);
     let temperature = observe::peculiar_temperature(sim.particles(), sim.field(), |x| {
         let rr = plan.shape.signed_distance(x) + radius;
         DVec3::new(0.0, 0.0, (a - curv * rr * rr).max(0.0))
     });
-    let reflections = sim.extension().reflections();
-    let bin_centres = sim.extension().bin_centres();
-    let over = if plan.run.measure_overhead {
-        overhead(plan, &mut sim)?
-    } else {
-        serde_json::Value::Null
-    };
     let um = match plan.length_scale_um_per_rc {
         Some(l) => json!({ "diameter_um": 2.0 * radius * l, "length_um": length * l }),
         None => serde_json::Value::Null,
     };
     Ok(json!({
-        "units": "DPD model units: length rc, energy kBT, mass m",
         "geometry": { "radius": radius, "length": length, "si": um },
-        "steps": plan.total(),
-        "resumed_from_step": resumed,
-        "wall_force_source": source,
-        "adaptation": adaptation(&sim),
         "profile": { "r": rc, "v_z": v, "parabola": fit, "interior_parabola": fit_in, "density": rho, "samples": samples },
         "parabola": { "centre_velocity": a, "curvature": curv, "slip_velocity": a - curv * radius * radius, "slip_fraction": slip, "viscosity_whole_profile": plan.fluid.density * g / (4.0 * curv) },
         "reference_parabola": reference_json,
@@ -871,25 +854,12 @@ fn tube_results(
         "viscosity": if enough { json!({ "value": eta_interior, "standard_error": eta_se, "blocks": eta_blocks, "fit_radius": r_in, "fit_bins": interior_bins, "interior_density": interior_density(&cnt, samples),
             "method": "η = n g / (4c): c the curvature of v = a − c r² fitted over r < R − 2rc, n the measured density there; standard error over the time blocks" }) }
             else { json!({ "value": null, "note": format!("the tube interior r < R − 2rc = {r_in:.2} holds {interior_bins} profile bins; the fit needs {MIN_INTERIOR_BINS} (a larger radius or more run.profile_bins)") }) },
-        "near_wall": { "bin_centres": bin_centres, "relative_density": near, "max_density_deviation": dev, "target_density": rho0 },
-        "reflections": reflections,
         "temperature": temperature,
-        "stepping_seconds": m.stepping_seconds,
-        "overhead": over,
-        "checkpoint_file": ctx.out_dir.join(CHECKPOINT_FILE),
-        "trajectory_file": (plan.output.trajectory_every_steps > 0).then(|| ctx.out_dir.join(TRAJECTORY_FILE)),
     }))
 }
 
 /// Couette results: the profile against the line, slip at each wall, η from the wall stress.
-fn couette_results(
-    plan: &Plan,
-    ctx: &RunContext,
-    mut sim: Simulation<Walls>,
-    m: &Measurement,
-    source: &str,
-    resumed: Option<u64>,
-) -> Result<serde_json::Value, RunError> {
+fn couette_results(plan: &Plan, ctx: &RunContext, m: &Measurement) -> Result<serde_json::Value, RunError> {
     let Channel::Couette {
         lower,
         gap,
@@ -917,33 +887,51 @@ fn couette_results(
     write_csv(ctx, "velocity_profile.csv", "z,v_x,line,density", &rows)?;
     let slip_lo = ((c0 + c1 * lower) + u) / (2.0 * u);
     let slip_hi = (u - (c0 + c1 * upper)) / (2.0 * u);
-    let near = sim.extension().relative_density();
-    let dev = near.iter().map(|x| (x - 1.0).abs()).fold(0.0, f64::max);
-    let reflections = sim.extension().reflections();
-    let (bin_centres, rho0) = (sim.extension().bin_centres(), sim.extension().target_density());
-    let over = if plan.run.measure_overhead {
-        overhead(plan, &mut sim)?
-    } else {
-        serde_json::Value::Null
-    };
     Ok(json!({
-        "units": "DPD model units: length rc, energy kBT, mass m",
         "geometry": { "gap": gap, "width": [plan.box_lengths.x, plan.box_lengths.y], "wall_speed": u },
-        "steps": plan.total(),
-        "resumed_from_step": resumed,
-        "wall_force_source": source,
-        "adaptation": adaptation(&sim),
         "profile": { "z": z, "v_x": v, "line": fit, "density": rho, "samples": samples },
         "line": { "intercept": c0, "shear_rate": c1, "no_slip_shear_rate": 2.0 * u / gap, "slip_fraction_lower": slip_lo, "slip_fraction_upper": slip_hi },
         "shear_stress": { "mean": sigma, "standard_error": sigma_se, "samples": m.stress.len() },
         "viscosity": { "value": sigma / c1, "standard_error": sigma_se / c1.abs() },
-        "near_wall": { "bin_centres": bin_centres, "relative_density": near, "max_density_deviation": dev, "target_density": rho0 },
-        "reflections": reflections,
+    }))
+}
+
+/// The results every wall scenario reports, added to the kind's own (`specific`): the schedule,
+/// the adaptation, the near-wall density, reflections, timing, files; the overhead is timed last
+/// (it steps the simulation on).
+fn wall_results(
+    plan: &Plan,
+    ctx: &RunContext,
+    mut sim: Simulation<Walls>,
+    m: &Measurement,
+    source: &str,
+    resumed: Option<u64>,
+    specific: serde_json::Value,
+) -> Result<serde_json::Value, RunError> {
+    let walls = sim.extension();
+    let near = walls.relative_density();
+    let dev = near.iter().map(|x| (x - 1.0).abs()).fold(0.0, f64::max);
+    let mut out = json!({
+        "units": "DPD model units: length rc, energy kBT, mass m",
+        "steps": plan.total(),
+        "resumed_from_step": resumed,
+        "wall_force_source": source,
+        "adaptation": adaptation(&sim),
+        "near_wall": { "bin_centres": walls.bin_centres(), "relative_density": near, "max_density_deviation": dev, "target_density": walls.target_density() },
+        "reflections": walls.reflections(),
         "stepping_seconds": m.stepping_seconds,
-        "overhead": over,
         "checkpoint_file": ctx.out_dir.join(CHECKPOINT_FILE),
         "trajectory_file": (plan.output.trajectory_every_steps > 0).then(|| ctx.out_dir.join(TRAJECTORY_FILE)),
-    }))
+    });
+    if let (Some(o), serde_json::Value::Object(extra)) = (out.as_object_mut(), specific) {
+        o.extend(extra);
+    }
+    out["overhead"] = if plan.run.measure_overhead {
+        overhead(plan, &mut sim)?
+    } else {
+        serde_json::Value::Null
+    };
+    Ok(out)
 }
 
 fn tube_plan(s: &TubeScenario) -> Plan<'_> {
@@ -1018,7 +1006,8 @@ pub fn run_tube(
 ) -> Result<serde_json::Value, RunError> {
     let plan = tube_plan(s);
     let (sim, m, source) = drive(&plan, ctx, checkpoint)?;
-    tube_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step))
+    let specific = tube_results(&plan, ctx, &sim, &m)?;
+    wall_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step), specific)
 }
 
 /// Runs `kind = "couette"`, from step 0 or from a checkpoint.
@@ -1029,5 +1018,6 @@ pub fn run_couette(
 ) -> Result<serde_json::Value, RunError> {
     let plan = couette_plan(s);
     let (sim, m, source) = drive(&plan, ctx, checkpoint)?;
-    couette_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step))
+    let specific = couette_results(&plan, ctx, &m)?;
+    wall_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step), specific)
 }

@@ -864,6 +864,7 @@ fn validate_wall_common(
     f: &FluidSection,
     w: &WallsSection,
     r: &WallRunSection,
+    output: &WallOutput,
     c: &Check,
 ) -> Result<(), ScenarioError> {
     if kind != want {
@@ -916,13 +917,12 @@ fn validate_wall_common(
     if r.profile_bins < 2 || r.profile_bins > 1000 {
         return Err(c.fail("run.profile_bins", r.profile_bins, "an integer from 2 to 1000"));
     }
-    Ok(())
+    validate_output(c, output.particle_stride)
 }
 
 fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
     let c = Check { file };
-    validate_wall_common(&s.kind, "poiseuille-tube", &s.fluid, &s.walls, &s.run, &c)?;
-    validate_output(&c, s.output.particle_stride)?;
+    validate_wall_common(&s.kind, "poiseuille-tube", &s.fluid, &s.walls, &s.run, &s.output, &c)?;
     let rc = s.fluid.cutoff;
     c.range(
         "tube.radius",
@@ -1014,8 +1014,7 @@ fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
 
 fn validate_couette(s: &CouetteScenario, file: &str) -> Result<(), ScenarioError> {
     let c = Check { file };
-    validate_wall_common(&s.kind, "couette", &s.fluid, &s.walls, &s.run, &c)?;
-    validate_output(&c, s.output.particle_stride)?;
+    validate_wall_common(&s.kind, "couette", &s.fluid, &s.walls, &s.run, &s.output, &c)?;
     let rc = s.fluid.cutoff;
     c.range(
         "plates.gap",
