@@ -198,6 +198,9 @@ fn sweep_runs_every_combination_and_tabulates_the_kinds_figures() {
     let runs = sweep["runs"].as_array().unwrap();
     assert_eq!(runs.len(), 4);
     for r in runs {
+        // a plumbing check that the figure is read back from the run: 40 steps of 192 particles
+        // just after the start are far from an equilibrium average (0.87 seen), so only a loose
+        // bound; the temperature itself is validated in the engine tests (docs/validation.md §3)
         let t = r["metrics"]["kBT"].as_f64().unwrap();
         assert!(t > 0.5 && t < 1.5, "{r}");
         assert!(std::path::Path::new(r["dir"].as_str().unwrap())

@@ -176,12 +176,13 @@ pub struct FlowControl {
 /// The geometry a walled run measures in.
 #[derive(Clone, Copy, Debug)]
 enum Channel {
-    /// Tube of radius `radius` along z, length `length`, body force `g` along z; the
+    /// Tube of radius `radius` along z, length `length`, body force along z; the
     /// independently measured viscosity to compare with, if any.
     Tube {
         radius: f64,
         length: f64,
-        g: f64,
+        /// `tube.body_force` as written (set unless `mean_velocity` is: validated).
+        body_force: Option<f64>,
         reference_viscosity: Option<f64>,
         /// Target mean velocity and controller period, when controlled.
         mean_velocity: Option<(f64, u64)>,
@@ -210,8 +211,6 @@ struct Plan<'a> {
     channel: Channel,
     /// µm per rc, for reporting lengths in µm too.
     length_scale_um_per_rc: Option<f64>,
-    /// `tube.body_force` as written (reported as unused when the flow controller sets the force).
-    tube_body_force: Option<f64>,
 }
 
 impl Plan<'_> {
@@ -234,7 +233,7 @@ impl Plan<'_> {
     fn body_force(&self) -> DVec3 {
         match self.channel {
             Channel::Tube {
-                g,
+                body_force,
                 radius,
                 reference_viscosity,
                 mean_velocity,
@@ -246,7 +245,7 @@ impl Plan<'_> {
                     0.0,
                     8.0 * reference_viscosity.unwrap_or(1.0) * u / (self.fluid.density * radius * radius),
                 ),
-                None => DVec3::new(0.0, 0.0, g),
+                None => DVec3::new(0.0, 0.0, body_force.unwrap_or(0.0)),
             },
             Channel::Couette { .. } => DVec3::ZERO,
         }
@@ -750,7 +749,7 @@ fn tube_results(
     let Channel::Tube {
         radius,
         length,
-        g,
+        body_force,
         reference_viscosity,
         ..
     } = plan.channel
@@ -760,7 +759,7 @@ fn tube_results(
     // with the flow controller on, the profile saw the mean force of the sampling phase
     let g = match &m.flow_control {
         Some(c) if c.sampling_steps > 0 => c.sampling_force_sum / c.sampling_steps as f64,
-        _ => g,
+        _ => plan.body_force().z,
     };
     let nb = plan.run.profile_bins;
     let w = radius / nb as f64;
@@ -846,7 +845,7 @@ fn tube_results(
             let (count, velocity) = (m.profile.count.iter().flatten().sum::<f64>(), m.profile.velocity.iter().flatten().sum::<f64>());
             json!({ "target_mean_velocity": c.target, "measured_mean_velocity": velocity / count.max(1.0),
                     "body_force_mean": g, "body_force_final": c.force, "updates": c.history.len(),
-                    "tube_body_force_not_used": plan.tube_body_force,
+                    "tube_body_force_not_used": body_force,
                     "history": c.history.iter().map(|h| json!({"step": h[0], "mean_velocity": h[1], "body_force": h[2]})).collect::<Vec<_>>(),
                     "law": "PI every flow_control_every steps: e = U − ū, I += e·MΔt/τ_v, f = 8η/(nR²)·(e + I), τ_v = nR²/(η j0²)" })
         }),
@@ -955,12 +954,11 @@ fn tube_plan(s: &TubeScenario) -> Plan<'_> {
         channel: Channel::Tube {
             radius: t.radius,
             length: t.length,
-            g: t.body_force.unwrap_or(0.0),
+            body_force: t.body_force,
             reference_viscosity: t.reference_viscosity,
             mean_velocity: t.mean_velocity.map(|u| (u, t.flow_control_every)),
         },
         length_scale_um_per_rc: t.length_scale_um_per_rc,
-        tube_body_force: t.body_force,
     }
 }
 
@@ -994,7 +992,6 @@ fn couette_plan(s: &CouetteScenario) -> Plan<'_> {
             area: pl.width[0] * pl.width[1],
         },
         length_scale_um_per_rc: None,
-        tube_body_force: None,
     }
 }
 
