@@ -25,6 +25,16 @@ pub struct PairParams {
     pub s: Real,
 }
 
+/// Shear viscosity of the standard fluid ([`PairParams::groot_warren`], ρ = 3, m = 1) with
+/// Δt = 0.01 and λ = 0.5, measured by this engine in reverse-Poiseuille flow (the fit over the
+/// bins at least rc from the kinks, 8 halves of 6 × 6 × 16 at g = 0.1 and 0.05). The wall
+/// tests compare their viscosities with it: engine against engine. Kinetic theory gives 0.957
+/// (no pair correlations); LAMMPS `pair_style dpd` gives 0.87 ± 0.01 on the same fluid
+/// (docs/walls.md). `scripts/validate_viscosity.sh` re-measures it and fails when it moves.
+pub const STANDARD_FLUID_VISCOSITY: Real = 0.842;
+/// Standard error of [`STANDARD_FLUID_VISCOSITY`].
+pub const STANDARD_FLUID_VISCOSITY_SE: Real = 0.004;
+
 impl PairParams {
     /// The Groot–Warren standard fluid: a = 25, γ = 4.5, kBT = 1, rc = 1, s = 1.
     pub const fn groot_warren() -> Self {

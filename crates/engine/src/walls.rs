@@ -142,6 +142,47 @@ impl WallShape {
         }
     }
 
+    /// The fraction s ∈ [0, 1] of the straight step from `x0` (in the fluid) to `x0 + dx` (in
+    /// the wall) at which the particle crosses the surface. The surfaces move only along
+    /// themselves, so the crossing is that of the static geometry: exact for the plates (the
+    /// signed distance is linear along the step) and for the cylinder (a quadratic in s).
+    pub fn crossing_fraction(&self, x0: DVec3, dx: DVec3) -> Real {
+        let s = match *self {
+            WallShape::Cylinder { axis, centre, radius } => {
+                let (a, b) = others(axis);
+                let (px, py) = (x0[a] - centre[0], x0[b] - centre[1]);
+                let (dxa, dxb) = (dx[a], dx[b]);
+                // |p + s d|² = R²: qa s² + 2 qb s + qc = 0, qc ≤ 0 (x0 inside), the root ≥ 0
+                let qa = dxa * dxa + dxb * dxb;
+                let qb = px * dxa + py * dxb;
+                let qc = px * px + py * py - radius * radius;
+                let disc = (qb * qb - qa * qc).max(0.0).sqrt();
+                if qb >= 0.0 {
+                    // s = −qc / (qb + disc), free of cancellation
+                    if qb + disc > 0.0 {
+                        -qc / (qb + disc)
+                    } else {
+                        0.0
+                    }
+                } else if qa > 0.0 {
+                    (disc - qb) / qa
+                } else {
+                    0.0
+                }
+            }
+            WallShape::Plates { .. } => {
+                let h0 = (-self.signed_distance(x0)).max(0.0);
+                let d1 = self.signed_distance(x0 + dx).max(0.0);
+                if h0 + d1 > 0.0 {
+                    h0 / (h0 + d1)
+                } else {
+                    0.0
+                }
+            }
+        };
+        s.clamp(0.0, 1.0)
+    }
+
     /// Number of distinct surfaces ([`WallShape::side`] is below this).
     pub fn sides(&self) -> usize {
         match self {
@@ -304,10 +345,12 @@ impl WallShape {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Reflection {
-    /// Mirror the position through the surface; v → 2 u_wall − v (no slip).
+    /// v → 2 u_wall − v (no slip): in the wall's frame the particle goes back along the path
+    /// it came, from the point where it crossed the surface, for the rest of the step.
     #[default]
     BounceBack,
-    /// Mirror the position; reverse only the normal component of v − u_wall (slip).
+    /// Reverse only the normal component of v − u_wall (slip); the particle continues from
+    /// the crossing point with the reflected velocity for the rest of the step.
     Specular,
 }
 
@@ -879,10 +922,10 @@ impl Extension for Walls {
         let frozen: Vec<bool> = s.field.types().iter().map(|t| t.frozen).collect();
         let mass: Vec<Real> = s.field.types().iter().map(|t| t.mass).collect();
         let domain = *s.domain;
+        let dt = s.dt;
         // Moving walls: translate the frozen wall particles with their wall's velocity (along
         // the surface, so their signed distance does not change), keeping them in the box.
         if self.moving {
-            let dt = s.dt;
             s.pos
                 .par_iter_mut()
                 .zip(s.ptype.par_iter())
@@ -910,18 +953,24 @@ impl Extension for Walls {
                 if d <= 0.0 {
                     return None;
                 }
-                let n = shape.normal(*x);
+                // The drift moved the particle by Δt·v along a straight line (the integrator's
+                // step 1), so it left x0 = x − Δt·v and crossed the surface at x0 + s·Δt·v.
                 let u = shape.wall_velocity(*x);
                 let side = shape.side(*x);
                 let old = *v;
-                let y = domain.wrap(*x - n * (2.0 * d));
+                let dx = old * dt;
+                let x0 = *x - dx;
+                let s = shape.crossing_fraction(x0, dx);
+                let xc = x0 + dx * s;
                 *v = match refl {
-                    Reflection::BounceBack => 2.0 * u - *v,
+                    Reflection::BounceBack => 2.0 * u - old,
                     Reflection::Specular => {
-                        let r = *v - u;
+                        let n = shape.normal(xc);
+                        let r = old - u;
                         u + r - n * (2.0 * r.dot(n))
                     }
                 };
+                let y = domain.wrap(xc + *v * ((1.0 - s) * dt));
                 *x = y;
                 let inside = shape.signed_distance(y) > 0.0;
                 Some((i, side, (old - *v) * mass[t as usize], inside))
@@ -1077,6 +1126,127 @@ mod tests {
         let d = PeriodicBox::new(DVec3::new(4.0, 5.0, 9.0)).unwrap();
         assert!((p.fluid_volume(&d) - 120.0).abs() < 1e-9);
         assert!((p.layer_volume(&d, 0.0, 0.5) - 20.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn crossing_fractions_are_exact() {
+        let c = WallShape::Cylinder {
+            axis: 2,
+            centre: [5.0, 5.0],
+            radius: 3.0,
+        };
+        // from r = 2.5 outward along x by 1: crosses r = 3 at s = 0.5
+        let s = c.crossing_fraction(DVec3::new(7.5, 5.0, 1.0), DVec3::new(1.0, 0.0, 0.3));
+        assert!((s - 0.5).abs() < 1e-14, "{s}");
+        // a chord: from (5 + 2.9, 5 − 0.5) along +y by 2 (ends at r = 3.26); |p + s d|² = 9
+        let (x0, d) = (DVec3::new(7.9, 4.5, 0.0), DVec3::new(0.0, 2.0, 0.0));
+        let s = c.crossing_fraction(x0, d);
+        assert!(
+            (c.signed_distance(x0 + d * s)).abs() < 1e-13 && s > 0.0 && s < 1.0,
+            "{s}"
+        );
+        let p = plates();
+        // lower plate at z = 1: from z = 1.2 down to z = 0.7 crosses at s = 0.4
+        let s = p.crossing_fraction(DVec3::new(0.3, 0.2, 1.2), DVec3::new(0.5, 0.0, -0.5));
+        assert!((s - 0.4).abs() < 1e-14, "{s}");
+        // upper plate at z = 7
+        let s = p.crossing_fraction(DVec3::new(0.0, 0.0, 6.9), DVec3::new(0.0, 0.0, 0.4));
+        assert!((s - 0.25).abs() < 1e-14, "{s}");
+    }
+
+    /// Bounce-back sends a particle back along the path it came: from the crossing point at
+    /// x0 + sΔt·v it travels (1 − s)Δt with −v (static wall) or 2u − v (moving wall, in whose
+    /// frame the path is reversed); specular reflection continues from the same crossing point.
+    #[test]
+    fn reflection_goes_back_from_the_crossing_point() {
+        let domain = PeriodicBox::new(DVec3::new(10.0, 10.0, 9.0)).unwrap();
+        let field = wall_field(PairParams::groot_warren()).unwrap();
+        let dt = 0.01;
+        let cyl = WallShape::Cylinder {
+            axis: 2,
+            centre: [5.0, 5.0],
+            radius: 3.0,
+        };
+        let cases = [
+            (
+                cyl,
+                Reflection::BounceBack,
+                DVec3::new(7.9, 5.3, 2.0),
+                DVec3::new(30.0, 10.0, -5.0),
+            ),
+            (
+                cyl,
+                Reflection::Specular,
+                DVec3::new(7.9, 5.3, 2.0),
+                DVec3::new(30.0, 10.0, -5.0),
+            ),
+            (
+                plates(),
+                Reflection::BounceBack,
+                DVec3::new(2.0, 3.0, 6.9),
+                DVec3::new(4.0, -2.0, 25.0),
+            ),
+            (
+                plates(),
+                Reflection::Specular,
+                DVec3::new(2.0, 3.0, 6.9),
+                DVec3::new(4.0, -2.0, 25.0),
+            ),
+        ];
+        for (shape, refl, x0, v) in cases {
+            let mut walls = Walls::new(
+                shape,
+                WallConfig {
+                    reflection: refl,
+                    ..WallConfig::default()
+                },
+            )
+            .unwrap();
+            let (mut pos, mut vel, mut force) = (vec![x0 + v * dt], vec![v], vec![DVec3::ZERO]);
+            assert!(
+                shape.signed_distance(pos[0]) > 0.0,
+                "the test particle must end in the wall"
+            );
+            let mut s = StateMut {
+                pos: &mut pos,
+                vel: &mut vel,
+                force: &mut force,
+                ptype: &[FLUID_TYPE],
+                id: &[0],
+                domain: &domain,
+                field: &field,
+                dt,
+                step: 0,
+            };
+            walls.after_position_update(&mut s).unwrap();
+            let frac = shape.crossing_fraction(x0, v * dt);
+            let xc = x0 + v * (frac * dt);
+            let u = shape.wall_velocity(xc);
+            let expect_v = match refl {
+                Reflection::BounceBack => 2.0 * u - v,
+                Reflection::Specular => {
+                    let n = shape.normal(xc);
+                    v - n * (2.0 * (v - u).dot(n))
+                }
+            };
+            assert!(
+                (vel[0] - expect_v).length() < 1e-12,
+                "{refl:?}: v {} vs {expect_v}",
+                vel[0]
+            );
+            let expect_x = xc + expect_v * ((1.0 - frac) * dt);
+            assert!(
+                (pos[0] - expect_x).length() < 1e-12,
+                "{refl:?}: x {} vs {expect_x}",
+                pos[0]
+            );
+            assert!(shape.signed_distance(pos[0]) < 0.0);
+            if refl == Reflection::BounceBack && u == DVec3::ZERO {
+                // back along the incoming path: x0 + (2s − 1)Δt·v
+                assert!((pos[0] - (x0 + v * ((2.0 * frac - 1.0) * dt))).length() < 1e-12);
+            }
+            assert_eq!(walls.reflections(), 1);
+        }
     }
 
     #[test]

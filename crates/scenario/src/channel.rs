@@ -36,14 +36,12 @@ use std::time::Instant;
 /// the wall stress come from the scatter between blocks.
 pub const BLOCKS: usize = 10;
 
-/// Radial bins within this many cut-offs of the tube wall are left out of the viscosity fit.
-/// DPD's stress at r comes from pairs within rc of r, and the fluid's structure is perturbed
-/// up to about rc from the wall, so the bulk relation σ = η γ̇ holds for r < R − 2rc
-/// (docs/walls.md, "Tube viscosity").
-pub const INTERIOR_MARGIN_RC: f64 = 2.0;
+/// Departure, in standard errors, of the next two edges' mean from the plateau so far that
+/// ends the plateau: 3σ, a 0.27 % chance per step in the bulk.
+const DEPARTURE_Z: f64 = 3.0;
 
-/// Fewest radial bins the interior fit needs; with fewer the viscosity is not reported.
-const MIN_INTERIOR_BINS: usize = 3;
+/// Fewest bin edges the plateau of η(r) must hold; with fewer the viscosity is not reported.
+const MIN_PLATEAU_EDGES: usize = 3;
 
 fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
     RunError::Engine(e.to_string())
@@ -59,10 +57,11 @@ fn pair(f: &FluidSection) -> PairParams {
     }
 }
 
-/// Weighted least squares y = c0 + c1 x (weights w): returns (c0, c1).
+/// Weighted least squares y = c0 + c1 x (weights w): returns (c0, c1). Points of weight 0
+/// (empty bins, whose y is NaN) are left out.
 pub fn fit_line(x: &[f64], y: &[f64], w: &[f64]) -> (f64, f64) {
     let (mut s, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for i in 0..x.len() {
+    for i in (0..x.len()).filter(|&i| w[i] > 0.0) {
         s += w[i];
         sx += w[i] * x[i];
         sy += w[i] * y[i];
@@ -73,27 +72,55 @@ pub fn fit_line(x: &[f64], y: &[f64], w: &[f64]) -> (f64, f64) {
     ((sy - c1 * sx) / s, c1)
 }
 
-/// Mean and standard error of the mean of independent values (NaN when fewer than two).
-fn mean_se(v: &[f64]) -> (f64, f64) {
-    let n = v.len() as f64;
-    let m = v.iter().sum::<f64>() / n;
-    if v.len() < 2 {
-        return (m, f64::NAN);
-    }
-    let var = v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0);
-    (m, (var / n).sqrt())
-}
-
-/// Per-block sums of a profile across the channel: particle counts and the flow-direction
-/// velocity, per bin.
+/// Per-block sums of a profile across the channel: particle counts, the flow-direction
+/// velocity and the squared velocity components, per bin.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ProfileSums {
     /// `count[block][bin]`.
     pub count: Vec<Vec<f64>>,
     /// `velocity[block][bin]`: Σ of the velocity component along the flow.
     pub velocity: Vec<Vec<f64>>,
+    /// `square[block][bin]`: Σ of the squared velocity components (wall-normal, the other
+    /// tangential direction, along the flow), for the temperature profile.
+    #[serde(default)]
+    pub square: Vec<Vec<[f64; 3]>>,
     /// Samples per block.
     pub samples: Vec<u64>,
+}
+
+/// Sums of a [`ProfileSums`] over a set of blocks.
+struct BinSums {
+    count: Vec<f64>,
+    velocity: Vec<f64>,
+    square: Vec<[f64; 3]>,
+    samples: u64,
+}
+
+impl BinSums {
+    /// Mean flow velocity per bin; NaN for a bin no particle visited.
+    fn mean_velocity(&self) -> Vec<f64> {
+        self.velocity
+            .iter()
+            .zip(&self.count)
+            .map(|(v, &c)| if c > 0.0 { v / c } else { f64::NAN })
+            .collect()
+    }
+
+    /// Peculiar kBT per bin and component (normal, other tangential, flow), mass `m`: the flow
+    /// component about the bin's mean velocity. NaN for an empty bin.
+    fn temperature(&self, m: f64) -> Vec<[f64; 3]> {
+        (0..self.count.len())
+            .map(|k| {
+                let c = self.count[k];
+                if c <= 0.0 {
+                    return [f64::NAN; 3];
+                }
+                let u = self.velocity[k] / c;
+                let q = self.square[k];
+                [m * q[0] / c, m * q[1] / c, m * (q[2] / c - u * u)]
+            })
+            .collect()
+    }
 }
 
 impl ProfileSums {
@@ -101,22 +128,38 @@ impl ProfileSums {
         Self {
             count: vec![vec![0.0; bins]; BLOCKS],
             velocity: vec![vec![0.0; bins]; BLOCKS],
+            square: vec![vec![[0.0; 3]; bins]; BLOCKS],
             samples: vec![0; BLOCKS],
         }
     }
 
-    /// (counts, mean velocity) over the blocks in `blocks`.
-    fn mean(&self, blocks: std::ops::Range<usize>) -> (Vec<f64>, Vec<f64>) {
+    /// The sums over the blocks for which `take(block)` holds.
+    fn sum(&self, take: impl Fn(usize) -> bool) -> BinSums {
         let nb = self.count[0].len();
-        let (mut c, mut v) = (vec![0.0; nb], vec![0.0; nb]);
-        for b in blocks {
+        let mut s = BinSums {
+            count: vec![0.0; nb],
+            velocity: vec![0.0; nb],
+            square: vec![[0.0; 3]; nb],
+            samples: 0,
+        };
+        for b in (0..BLOCKS).filter(|&b| take(b)) {
             for k in 0..nb {
-                c[k] += self.count[b][k];
-                v[k] += self.velocity[b][k];
+                s.count[k] += self.count[b][k];
+                s.velocity[k] += self.velocity[b][k];
+                for c in 0..3 {
+                    s.square[k][c] += self.square[b][k][c];
+                }
             }
+            s.samples += self.samples[b];
         }
-        let v = v.iter().zip(&c).map(|(v, c)| v / c.max(1.0)).collect();
-        (c, v)
+        s
+    }
+
+    /// (counts, mean velocity) over all blocks; the velocity of an empty bin is NaN.
+    fn mean(&self) -> (Vec<f64>, Vec<f64>) {
+        let s = self.sum(|_| true);
+        let v = s.mean_velocity();
+        (s.count, v)
     }
 
     fn total_samples(&self) -> u64 {
@@ -129,9 +172,10 @@ impl ProfileSums {
 pub struct Measurement {
     /// Velocity and density profile across the channel.
     pub profile: ProfileSums,
-    /// Couette: the wall shear stress at every sampled step.
+    /// The wall shear stress at every sampled step: Couette, the mean of the two plates'
+    /// stresses on the fluid; tube, the axial force of the fluid on the wall per wall area.
     pub stress: Vec<f64>,
-    /// Couette: the reflection impulse along x of each plate at the last step.
+    /// The reflection impulse along the flow of each surface at the last step.
     pub impulse_prev: [f64; 2],
     /// Wall-clock seconds of the stepping so far (over all sessions of a resumed run).
     pub stepping_seconds: f64,
@@ -268,6 +312,18 @@ impl Plan<'_> {
             target_density: None,
         }
     }
+    /// The axis the flow runs along (tube: z; Couette: x).
+    fn flow_axis(&self) -> usize {
+        match self.channel {
+            Channel::Tube { .. } => 2,
+            Channel::Couette { .. } => 0,
+        }
+    }
+    fn flow_direction(&self) -> DVec3 {
+        let mut e = DVec3::ZERO;
+        e[self.flow_axis()] = 1.0;
+        e
+    }
     fn frame_due(&self, step: u64) -> bool {
         let every = self.output.trajectory_every_steps;
         every > 0 && step % every == 0
@@ -284,8 +340,52 @@ impl Plan<'_> {
     }
 }
 
-/// Builds the walled simulation at step 0; loads the force file if it matches. Returns the
-/// simulation and where the profile came from.
+/// The cache file of the converged wall-force profile for this plan's fluid, geometry, bins,
+/// control law and reflection (in the mesh cache's directory; [`crate::mesh_cache::cache_dir`]).
+fn wall_force_cache_path(plan: &Plan) -> std::path::PathBuf {
+    let geometry = match plan.shape {
+        WallShape::Cylinder { radius, .. } => format!("cylinder radius {radius:?}"),
+        WallShape::Plates { lower, upper, .. } => format!("plates gap {:?}", upper - lower),
+    };
+    let w = plan.walls;
+    let key = format!(
+        "{:?} density {:?} | {geometry} | bins {} law {:?} reflection {:?}",
+        pair(plan.fluid),
+        plan.fluid.density,
+        w.bins,
+        w.law,
+        w.reflection
+    );
+    // FNV-1a: a stable name for the key (std's hasher may change between releases)
+    let hash = key.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
+    });
+    crate::mesh_cache::cache_dir().join(format!("wall-force-{hash:016x}.csv"))
+}
+
+/// Reads a force profile; `None` when the file does not exist or is for another fluid or bin
+/// layout (said in `source`).
+fn read_profile(plan: &Plan, path: &Path, source: &mut String) -> Result<Option<WallForceProfile>, RunError> {
+    if !path.exists() {
+        return Ok(None);
+    }
+    let text = std::fs::read_to_string(path).map_err(|source| RunError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let prof = WallForceProfile::from_csv(&text).map_err(|e| RunError::Output(format!("{}: {e}", path.display())))?;
+    if prof.matches(&pair(plan.fluid), plan.fluid.density, plan.walls.bins) {
+        *source = format!("file {}", path.display());
+        Ok(Some(prof))
+    } else {
+        *source = format!("{} is for another fluid or bin layout", path.display());
+        Ok(None)
+    }
+}
+
+/// Builds the walled simulation at step 0, with the initial force profile from
+/// `walls.force_file`, the cache or `walls.initial`. Returns the simulation and where the
+/// profile came from.
 fn build(plan: &Plan) -> Result<(Simulation<Walls>, String), RunError> {
     let (f, w) = (plan.fluid, plan.walls);
     let config = plan.config();
@@ -299,35 +399,37 @@ fn build(plan: &Plan) -> Result<(Simulation<Walls>, String), RunError> {
     };
     let (field, particles) = walls::build(&config, &setup, plan.seed).map_err(engine_err)?;
     let mut ext = Walls::new(plan.shape, plan.wall_config()).map_err(engine_err)?;
-    let mut source = format!("{:?}", w.initial);
-    let mut loaded = false;
+    let mut note = String::new();
+    let mut loaded = None;
     if let Some(file) = &w.force_file {
-        let path = plan.base_dir.join(file);
-        if path.exists() {
-            let text = std::fs::read_to_string(&path).map_err(|source| RunError::Io {
-                path: path.clone(),
-                source,
-            })?;
-            let prof =
-                WallForceProfile::from_csv(&text).map_err(|e| RunError::Output(format!("{}: {e}", path.display())))?;
-            if prof.matches(&p, f.density, w.bins) {
-                ext = ext.with_profile(&prof).map_err(engine_err)?;
-                source = format!("file {}", path.display());
-                loaded = true;
+        loaded = read_profile(plan, &plan.base_dir.join(file), &mut note)?;
+    }
+    if loaded.is_none() && w.initial == InitialWallForce::Cached {
+        loaded = read_profile(plan, &wall_force_cache_path(plan), &mut note)?;
+    }
+    let source = match loaded {
+        Some(prof) => {
+            ext = ext.with_profile(&prof).map_err(engine_err)?;
+            note
+        }
+        None => {
+            if w.initial == InitialWallForce::HalfSpace {
+                ext = ext
+                    .with_profile(&WallForceProfile::half_space(p, f.density, w.bins))
+                    .map_err(engine_err)?;
+            }
+            let start = if w.initial == InitialWallForce::HalfSpace {
+                "HalfSpace"
             } else {
-                source = format!(
-                    "{:?} ({} is for another fluid or bin layout)",
-                    w.initial,
-                    path.display()
-                );
+                "Zero"
+            };
+            if note.is_empty() {
+                start.to_string()
+            } else {
+                format!("{start} ({note})")
             }
         }
-    }
-    if !loaded && w.initial == InitialWallForce::HalfSpace {
-        ext = ext
-            .with_profile(&WallForceProfile::half_space(p, f.density, w.bins))
-            .map_err(engine_err)?;
-    }
+    };
     let mut sim = Simulation::with_extension(config, field, particles, ext).map_err(engine_err)?;
     sim.set_body_force(walls::FLUID_TYPE as usize, plan.body_force())
         .map_err(engine_err)?;
@@ -396,10 +498,17 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(Simulation<Walls>, Measureme
         .map_or(plan.body_force(), |c| DVec3::new(0.0, 0.0, c.force));
     sim.set_body_force(walls::FLUID_TYPE as usize, force)
         .map_err(engine_err)?;
-    let bins_ok = |v: &Vec<Vec<f64>>| v.len() == BLOCKS && v.iter().all(|c| c.len() == plan.run.profile_bins);
+    let nb = plan.run.profile_bins;
+    let bins_ok = |v: &Vec<Vec<f64>>| v.len() == BLOCKS && v.iter().all(|c| c.len() == nb);
+    let squares_ok = m.profile.square.len() == BLOCKS && m.profile.square.iter().all(|c| c.len() == nb);
     if !bins_ok(&m.profile.count) || !bins_ok(&m.profile.velocity) || m.profile.samples.len() != BLOCKS {
         return Err(RunError::Output(
             "checkpoint: the sampled profile does not match run.profile_bins".into(),
+        ));
+    }
+    if !squares_ok {
+        return Err(RunError::Output(
+            "checkpoint: written by an earlier hemodpd without the temperature profile; start the run again".into(),
         ));
     }
     let source = ck
@@ -419,57 +528,78 @@ fn write_frame(plan: &Plan, w: &mut TrajectoryWriter, sim: &Simulation<Walls>) -
         .map_err(out_err)
 }
 
-/// Writes the force profile (run directory, and the scenario's force file after adaptation).
+/// Writes the force profile into the run directory (`wall_force.csv`) and, after adaptation,
+/// into the cache for `walls.initial = "cached"` (atomically: a temporary file renamed, so
+/// runs in parallel never read half a file). Nothing is written next to the scenario file.
 fn write_force_files(plan: &Plan, sim: &Simulation<Walls>, ctx: &RunContext) -> Result<(), RunError> {
     let prof = sim.extension().profile(pair(plan.fluid), plan.fluid.density);
     let csv = prof.to_csv();
-    let mut paths = vec![ctx.out_dir.join("wall_force.csv")];
-    if let (Some(file), true) = (&plan.walls.force_file, plan.adapt_steps() > 0) {
-        paths.push(plan.base_dir.join(file));
-    }
-    for path in paths {
-        std::fs::write(&path, &csv).map_err(|source| RunError::Io { path, source })?;
+    let path = ctx.out_dir.join("wall_force.csv");
+    std::fs::write(&path, &csv).map_err(|source| RunError::Io { path, source })?;
+    if plan.adapt_steps() > 0 {
+        // the cache is an optimisation: a read-only or missing cache directory is not an error
+        let path = wall_force_cache_path(plan);
+        if let Some(dir) = path.parent() {
+            let tmp = dir.join(format!(
+                ".wall-force-{}-{:?}.tmp",
+                std::process::id(),
+                std::thread::current().id()
+            ));
+            let stored = std::fs::create_dir_all(dir)
+                .and_then(|_| std::fs::write(&tmp, &csv))
+                .and_then(|_| std::fs::rename(&tmp, &path));
+            if stored.is_err() {
+                let _ = std::fs::remove_file(&tmp);
+            }
+        }
     }
     Ok(())
 }
 
-/// Samples after a step of the sampling phase (`i` steps of it done before this one).
+/// Samples after a step of the sampling phase (`i` steps of it done before this one): the
+/// profile every `run.sample_every` steps, the wall shear stress every step.
 fn sample(plan: &Plan, sim: &Simulation<Walls>, m: &mut Measurement, i: u64) {
     let r = plan.run;
     let block = ((i * BLOCKS as u64) / r.steps) as usize;
     let p = sim.particles();
     let profile = i % r.sample_every == 0;
-    let dir = match plan.channel {
-        Channel::Tube { .. } => 2,
-        Channel::Couette { .. } => 0,
-    };
+    let dir = plan.flow_axis();
+    // force of the fluid on each surface along the flow: pair forces on the wall particles
     let mut fw = [0.0f64; 2];
-    let couette = matches!(plan.channel, Channel::Couette { .. });
     for k in 0..p.len() {
         if p.ptype[k] == walls::FLUID_TYPE {
             if profile {
                 if let Some(b) = plan.bin(p.pos[k]) {
+                    let v = p.vel[k];
+                    let (e_n, e_f) = (plan.shape.normal(p.pos[k]), plan.flow_direction());
+                    let e_t = e_f.cross(e_n);
+                    let (vn, vt) = (v.dot(e_n), v.dot(e_t));
                     m.profile.count[block][b] += 1.0;
-                    m.profile.velocity[block][b] += p.vel[k][dir];
+                    m.profile.velocity[block][b] += v[dir];
+                    let q = &mut m.profile.square[block][b];
+                    q[0] += vn * vn;
+                    q[1] += vt * vt;
+                    q[2] += v[dir] * v[dir];
                 }
             }
-        } else if couette {
-            fw[plan.shape.side(p.pos[k])] += p.force[k].x;
+        } else {
+            fw[plan.shape.side(p.pos[k])] += p.force[k][dir];
         }
     }
     if profile {
         m.profile.samples[block] += 1;
     }
-    if let Channel::Couette { area, .. } = plan.channel {
-        // shear stress on the fluid: pair forces on the wall particles plus the momentum the
-        // reflections gave each plate this step
-        let imp = sim.extension().impulse();
-        for k in 0..2 {
-            fw[k] += (imp[k].x - m.impulse_prev[k]) / r.timestep;
-            m.impulse_prev[k] = imp[k].x;
-        }
-        m.stress.push((fw[0] - fw[1]) / (2.0 * area));
+    // plus the momentum the reflections gave each surface this step
+    let imp = sim.extension().impulse();
+    for k in 0..plan.shape.sides() {
+        fw[k] += (imp[k][dir] - m.impulse_prev[k]) / r.timestep;
+        m.impulse_prev[k] = imp[k][dir];
     }
+    m.stress.push(match plan.channel {
+        // the stress on the fluid, averaged over the plates (the lower one drags it along −x)
+        Channel::Couette { area, .. } => (fw[0] - fw[1]) / (2.0 * area),
+        Channel::Tube { radius, length, .. } => fw[0] / (2.0 * std::f64::consts::PI * radius * length),
+    });
 }
 
 /// The flow controller's part of a step: accumulates the fluid's mean axial velocity and, every
@@ -738,8 +868,184 @@ fn fit_parabola(r: &[f64], v: &[f64], count: &[f64], r_max: f64) -> (f64, f64) {
     (a, -b)
 }
 
-/// Tube results: the profile against the parabola, the viscosity from the interior curvature
-/// (with block standard errors), slip, near-wall density, overhead.
+/// A local shear viscosity η at the bin edges across a channel, and its plateau.
+///
+/// η(x_e) = σ(x_e)/(dv/dx)(x_e) at the edge x_e between bins e − 1 and e, with the slope
+/// (v_e − v_{e−1})/w from the measured bin means (exact for a parabola, because the bins hold
+/// count-weighted means over their volume) and σ from an exact momentum balance (tube: the
+/// body force inside the edge; Couette: the measured wall stress). It needs no model of the
+/// profile and no chosen window: η is flat in the bulk and departs from it in the wall
+/// layers. The plateau grows from the centre of the channel towards each wall along `paths`
+/// and stops on a path where the mean of its next two edges departs from the plateau's running
+/// inverse-variance mean by more than [`DEPARTURE_Z`] jackknife standard errors. With too
+/// little signal (a weak drive, a short run) no departure is significant and the plateau takes
+/// in the wall layer: the summary reports its extent. Standard errors are jackknife estimates over the time blocks.
+struct ViscosityProfile {
+    /// Edge positions x_e (e = 1 … bins − 1).
+    r: Vec<f64>,
+    /// η(x_e) from all blocks, and its jackknife standard error.
+    eta: Vec<f64>,
+    se: Vec<f64>,
+    /// The edges (indices into `r`) of the plateau, in increasing order; empty when none.
+    plateau_edges: Vec<usize>,
+    /// Inverse-variance mean over the plateau, its jackknife standard error, χ²/dof.
+    plateau: Option<(f64, f64, f64)>,
+}
+
+/// See [`ViscosityProfile`]. `eta_of(take)` computes η at every edge from the blocks for which
+/// `take(block)` holds; each path lists edge indices from the centre towards a wall.
+fn viscosity_profile(
+    m: &Measurement,
+    r: Vec<f64>,
+    eta_of: impl Fn(&dyn Fn(usize) -> bool) -> Vec<f64>,
+    paths: Vec<Vec<usize>>,
+) -> ViscosityProfile {
+    let eta = eta_of(&|_| true);
+    let used: Vec<usize> = (0..BLOCKS).filter(|&b| m.profile.samples[b] > 0).collect();
+    let jack: Vec<Vec<f64>> = used.iter().map(|&out| eta_of(&|b| b != out)).collect();
+    let nj = jack.len() as f64;
+    let jack_se = |values: &dyn Fn(&Vec<f64>) -> f64| -> f64 {
+        if jack.len() < 2 {
+            return f64::NAN;
+        }
+        let x: Vec<f64> = jack.iter().map(values).collect();
+        let mean = x.iter().sum::<f64>() / nj;
+        ((nj - 1.0) / nj * x.iter().map(|v| (v - mean).powi(2)).sum::<f64>()).sqrt()
+    };
+    let se: Vec<f64> = (0..eta.len()).map(|k| jack_se(&|j: &Vec<f64>| j[k])).collect();
+    let ok = |k: usize| eta[k].is_finite() && eta[k] > 0.0 && se[k].is_finite() && se[k] > 0.0;
+    // the valid edges of each path; the first of each seeds the plateau
+    let paths: Vec<Vec<usize>> = paths
+        .into_iter()
+        .map(|p| p.into_iter().filter(|&k| ok(k)).collect())
+        .collect();
+    let mut edges: Vec<usize> = paths.iter().filter_map(|p| p.first().copied()).collect();
+    let mut next = vec![1usize; paths.len()];
+    let mut open = vec![true; paths.len()];
+    while open.iter().any(|&o| o) {
+        for (p, path) in paths.iter().enumerate() {
+            if !open[p] {
+                continue;
+            }
+            let Some(&k) = path.get(next[p]) else {
+                open[p] = false;
+                continue;
+            };
+            // the next two edges of the path (one at its end) against the plateau so far: the
+            // difference of their mean from the plateau's inverse-variance mean, over its
+            // jackknife standard error (neighbouring edges share a bin, so their errors are
+            // anticorrelated and the pair is better determined than either edge)
+            let group: Vec<usize> = path[next[p]..path.len().min(next[p] + 2)].to_vec();
+            let wsum: f64 = edges.iter().map(|&j| se[j].powi(-2)).sum();
+            let weights: Vec<(usize, f64)> = edges.iter().map(|&j| (j, se[j].powi(-2) / wsum)).collect();
+            let difference = |x: &Vec<f64>| {
+                group.iter().map(|&j| x[j]).sum::<f64>() / group.len() as f64
+                    - weights.iter().map(|&(j, w)| w * x[j]).sum::<f64>()
+            };
+            let z = difference(&eta) / jack_se(&difference);
+            if z.abs() > DEPARTURE_Z {
+                open[p] = false;
+            } else {
+                edges.push(k);
+                next[p] += 1;
+            }
+        }
+    }
+    edges.sort_unstable();
+    edges.dedup();
+    let plateau = (edges.len() >= MIN_PLATEAU_EDGES).then(|| {
+        let wsum: f64 = edges.iter().map(|&k| se[k].powi(-2)).sum();
+        let weights: Vec<f64> = edges.iter().map(|&k| se[k].powi(-2) / wsum).collect();
+        let mean: f64 = edges.iter().zip(&weights).map(|(&k, w)| w * eta[k]).sum();
+        let chi2: f64 = edges.iter().map(|&k| ((eta[k] - mean) / se[k]).powi(2)).sum();
+        let pse = jack_se(&|j: &Vec<f64>| edges.iter().zip(&weights).map(|(&k, w)| w * j[k]).sum());
+        (mean, pse, chi2 / (edges.len() - 1) as f64)
+    });
+    ViscosityProfile {
+        r,
+        eta,
+        se,
+        plateau_edges: if plateau.is_some() { edges } else { Vec::new() },
+        plateau,
+    }
+}
+
+impl ViscosityProfile {
+    /// The `viscosity` entry of a summary, with the extent of the plateau.
+    fn summary(&self, stress: &str) -> serde_json::Value {
+        match self.plateau {
+            Some((eta, se, chi2)) => {
+                let (lo, hi) = (self.plateau_edges[0], self.plateau_edges[self.plateau_edges.len() - 1]);
+                json!({ "value": eta, "standard_error": se, "plateau_edges": self.plateau_edges.len(),
+                        "plateau_from": self.r[lo], "plateau_to": self.r[hi], "chi2_per_dof": chi2,
+                        "method": format!("η(x) = σ/(dv/dx) at each bin edge, σ from {stress}, dv/dx from adjacent bins; the plateau is the inverse-variance mean over the edges from the centre out to where the mean of the next two edges departs from it by more than 3 standard errors; standard errors by jackknife over the time blocks") })
+            }
+            None => {
+                json!({ "value": null, "note": format!("η(x) has no plateau of {MIN_PLATEAU_EDGES} or more consistent bin edges (a longer run, a wider channel or more run.profile_bins)") })
+            }
+        }
+    }
+
+    /// Rows (x, η, standard error, in the plateau) for `viscosity_profile.csv`.
+    fn rows(&self) -> Vec<Vec<f64>> {
+        (0..self.r.len())
+            .map(|k| {
+                let inside = if self.plateau_edges.contains(&k) { 1.0 } else { 0.0 };
+                vec![self.r[k], self.eta[k], self.se[k], inside]
+            })
+            .collect()
+    }
+
+    fn json(&self) -> serde_json::Value {
+        json!({ "edge": self.r, "eta": self.eta, "standard_error": self.se })
+    }
+}
+
+/// Mean of the per-step stress series over the blocks for which `take(block)` holds (the
+/// series is split into the same [`BLOCKS`] as the profile).
+fn block_mean(series: &[f64], take: &dyn Fn(usize) -> bool) -> f64 {
+    let n = series.len();
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (i, x) in series.iter().enumerate() {
+        if take(i * BLOCKS / n.max(1)) {
+            sum += x;
+            count += 1;
+        }
+    }
+    sum / count.max(1) as f64
+}
+
+/// The tube's η(r): σ_rz(r) = −g N(<r)/(2πrL) is the exact axial momentum balance of the fluid
+/// inside r (σ_rz = −(g/r)∫₀ʳ n(r′)r′dr′ with the measured density). The plateau runs from the
+/// axis out, dropping edges from the wall inwards.
+fn tube_viscosity_profile(m: &Measurement, g: f64, radius: f64, length: f64) -> ViscosityProfile {
+    let nb = m.profile.count[0].len();
+    let w = radius / nb as f64;
+    let eta_of = |take: &dyn Fn(usize) -> bool| -> Vec<f64> {
+        let s = m.profile.sum(take);
+        let v = s.mean_velocity();
+        let mut inside = 0.0;
+        (1..nb)
+            .map(|e| {
+                inside += s.count[e - 1] / s.samples.max(1) as f64;
+                let re = e as f64 * w;
+                let sigma = -g * inside / (2.0 * std::f64::consts::PI * re * length);
+                sigma / ((v[e] - v[e - 1]) / w)
+            })
+            .collect()
+    };
+    // one path, from the axis out
+    viscosity_profile(
+        m,
+        (1..nb).map(|e| e as f64 * w).collect(),
+        eta_of,
+        vec![(0..nb - 1).collect()],
+    )
+}
+
+/// Tube results: the profile against the parabola, the viscosity profile η(r) from the momentum
+/// balance and its plateau, the wall shear stress against n̄gR/2, slip, near-wall density, the
+/// temperature profile.
 fn tube_results(
     plan: &Plan,
     ctx: &RunContext,
@@ -765,43 +1071,15 @@ fn tube_results(
     let w = radius / nb as f64;
     let samples = m.profile.total_samples();
     let rc: Vec<f64> = (0..nb).map(|b| (b as f64 + 0.5) * w).collect();
-    let (cnt, v) = m.profile.mean(0..BLOCKS);
+    let (cnt, v) = m.profile.mean();
     let ring = |b: usize| std::f64::consts::PI * (((b + 1) as f64 * w).powi(2) - (b as f64 * w).powi(2)) * length;
     let rho: Vec<f64> = (0..nb).map(|b| cnt[b] / (samples.max(1) as f64 * ring(b))).collect();
     // whole profile: the parabola the slip is measured against
     let (a, curv) = fit_parabola(&rc, &v, &cnt, radius);
     let slip = (a - curv * radius * radius) / a;
-    // interior: η = n g / 4c with the measured interior density n
-    let r_in = radius - INTERIOR_MARGIN_RC * plan.fluid.cutoff;
-    let interior_density = |c: &[f64], s: u64| {
-        let (mut n, mut vol) = (0.0, 0.0);
-        for b in (0..nb).filter(|&b| rc[b] < r_in) {
-            n += c[b];
-            vol += ring(b);
-        }
-        n / (s.max(1) as f64 * vol)
-    };
-    let eta_of = |c: &[f64], v: &[f64], s: u64| {
-        let (_, curv) = fit_parabola(&rc, v, c, r_in);
-        interior_density(c, s) * g / (4.0 * curv)
-    };
-    let interior_bins = rc.iter().filter(|&&x| x < r_in).count();
-    let enough = interior_bins >= MIN_INTERIOR_BINS;
-    let eta_interior = eta_of(&cnt, &v, samples);
-    let eta_blocks: Vec<f64> = (0..BLOCKS)
-        .filter(|&b| enough && m.profile.samples[b] > 0)
-        .map(|b| {
-            let (c, v) = m.profile.mean(b..b + 1);
-            eta_of(&c, &v, m.profile.samples[b])
-        })
-        .collect();
-    let (_, eta_se) = mean_se(&eta_blocks);
-    let (a_in, curv_in) = fit_parabola(&rc, &v, &cnt, r_in);
     let fit: Vec<f64> = rc.iter().map(|x| a - curv * x * x).collect();
-    let fit_in: Vec<f64> = rc
-        .iter()
-        .map(|x| if enough { a_in - curv_in * x * x } else { f64::NAN })
-        .collect();
+    // η(r) from the momentum balance
+    let vp = tube_viscosity_profile(m, g, radius, length);
     // the analytic no-slip parabola for the independently measured viscosity, with the mean
     // density of the tube
     let n_mean = cnt.iter().sum::<f64>() / (samples.max(1) as f64 * std::f64::consts::PI * radius * radius * length);
@@ -812,33 +1090,59 @@ fn tube_results(
     let reference_json = match reference_viscosity {
         Some(eta) => {
             let centre = n_mean * g * radius * radius / (4.0 * eta);
-            let rms = (v.iter().zip(&reference).map(|(a, b)| (a - b).powi(2)).sum::<f64>() / nb as f64).sqrt();
+            let filled: Vec<usize> = (0..nb).filter(|&k| cnt[k] > 0.0).collect();
+            let rms = (filled.iter().map(|&k| (v[k] - reference[k]).powi(2)).sum::<f64>() / filled.len().max(1) as f64)
+                .sqrt();
             json!({ "viscosity": eta, "density": n_mean, "centre_velocity": centre, "centre_velocity_measured_over_reference": a / centre,
                     "rms_deviation_over_centre_velocity": rms / centre, "profile": reference,
                     "definition": "v = n g (R² − r²)/(4η): no slip at the geometric wall R, n the mean density in the tube" })
         }
         None => serde_json::Value::Null,
     };
+    // temperature profile (peculiar: about each bin's mean velocity)
+    let temp = m.profile.sum(|_| true).temperature(fluid_mass(sim));
     let rows: Vec<Vec<f64>> = (0..nb)
-        .map(|k| vec![rc[k], v[k], fit[k], fit_in[k], reference[k], rho[k]])
+        .map(|k| {
+            vec![
+                rc[k],
+                v[k],
+                fit[k],
+                reference[k],
+                rho[k],
+                temp[k][0],
+                temp[k][1],
+                temp[k][2],
+            ]
+        })
         .collect();
     write_csv(
         ctx,
         "velocity_profile.csv",
-        "r,v_z,parabola,interior_parabola,reference_parabola,density",
+        "r,v_z,parabola,reference_parabola,density,kbt_radial,kbt_azimuthal,kbt_axial",
         &rows,
     )?;
-    let temperature = observe::peculiar_temperature(sim.particles(), sim.field(), |x| {
-        let rr = plan.shape.signed_distance(x) + radius;
-        DVec3::new(0.0, 0.0, (a - curv * rr * rr).max(0.0))
-    });
+    write_csv(
+        ctx,
+        "viscosity_profile.csv",
+        "r,eta,standard_error,in_plateau",
+        &vp.rows(),
+    )?;
+    // wall shear stress against the momentum balance n̄ g R / 2 (the wall carries the whole
+    // body force in steady flow)
+    let (tau, tau_se) = observe::block_error(&m.stress)
+        .or_else(|_| observe::block_average(&m.stress, 2))
+        .unwrap_or((f64::NAN, f64::NAN));
+    let tau_expected = n_mean * g * radius / 2.0;
     let um = match plan.length_scale_um_per_rc {
         Some(l) => json!({ "diameter_um": 2.0 * radius * l, "length_um": length * l }),
         None => serde_json::Value::Null,
     };
+    let viscosity = vp.summary("the axial momentum balance σ_rz(r) = −g N(<r)/(2πrL) with the measured density");
+    let t_mean = mean_temperature(&cnt, &temp);
     Ok(json!({
         "geometry": { "radius": radius, "length": length, "si": um },
-        "profile": { "r": rc, "v_z": v, "parabola": fit, "interior_parabola": fit_in, "density": rho, "samples": samples },
+        "profile": { "r": rc, "v_z": v, "parabola": fit, "density": rho, "samples": samples,
+                     "kbt": { "radial": temp.iter().map(|t| t[0]).collect::<Vec<_>>(), "azimuthal": temp.iter().map(|t| t[1]).collect::<Vec<_>>(), "axial": temp.iter().map(|t| t[2]).collect::<Vec<_>>() } },
         "parabola": { "centre_velocity": a, "curvature": curv, "slip_velocity": a - curv * radius * radius, "slip_fraction": slip, "viscosity_whole_profile": plan.fluid.density * g / (4.0 * curv) },
         "reference_parabola": reference_json,
         "flow_control": m.flow_control.as_ref().map(|c| {
@@ -850,15 +1154,23 @@ fn tube_results(
                     "law": "PI every flow_control_every steps: e = U − ū, I += e·MΔt/τ_v, f = 8η/(nR²)·(e + I), τ_v = nR²/(η j0²)" })
         }),
         "body_force": g,
-        "viscosity": if enough { json!({ "value": eta_interior, "standard_error": eta_se, "blocks": eta_blocks, "fit_radius": r_in, "fit_bins": interior_bins, "interior_density": interior_density(&cnt, samples),
-            "method": "η = n g / (4c): c the curvature of v = a − c r² fitted over r < R − 2rc, n the measured density there; standard error over the time blocks" }) }
-            else { json!({ "value": null, "note": format!("the tube interior r < R − 2rc = {r_in:.2} holds {interior_bins} profile bins; the fit needs {MIN_INTERIOR_BINS} (a larger radius or more run.profile_bins)") }) },
-        "temperature": temperature,
+        "viscosity": viscosity,
+        "viscosity_profile": vp.json(),
+        "wall_shear_stress": { "measured": tau, "standard_error": tau_se, "expected": tau_expected,
+                               "relative_deviation": tau / tau_expected - 1.0,
+                               "definition": "axial force of the fluid on the wall (pair forces on the wall particles + reflection impulses) per wall area 2πRL, against n̄gR/2 (the wall carries the body force on all fluid particles)" },
+        "temperature": { "mean": (t_mean[0] + t_mean[1] + t_mean[2]) / 3.0, "radial": t_mean[0], "azimuthal": t_mean[1], "axial": t_mean[2],
+                         "definition": "m⟨(v − ū(r))²⟩ per component over the sampled steps, ū(r) the measured mean velocity of the particle's radial bin" },
     }))
 }
 
 /// Couette results: the profile against the line, slip at each wall, η from the wall stress.
-fn couette_results(plan: &Plan, ctx: &RunContext, m: &Measurement) -> Result<serde_json::Value, RunError> {
+fn couette_results(
+    plan: &Plan,
+    ctx: &RunContext,
+    sim: &Simulation<Walls>,
+    m: &Measurement,
+) -> Result<serde_json::Value, RunError> {
     let Channel::Couette {
         lower,
         gap,
@@ -875,24 +1187,75 @@ fn couette_results(plan: &Plan, ctx: &RunContext, m: &Measurement) -> Result<ser
         .or_else(|_| observe::block_average(&m.stress, 2))
         .unwrap_or((f64::NAN, f64::NAN));
     let z: Vec<f64> = (0..nb).map(|b| lower + (b as f64 + 0.5) * gap / nb as f64).collect();
-    let (cnt, v) = m.profile.mean(0..BLOCKS);
+    let (cnt, v) = m.profile.mean();
     let rho: Vec<f64> = cnt
         .iter()
         .map(|c| c / (samples.max(1) as f64 * area * gap / nb as f64))
         .collect();
     let (c0, c1) = fit_line(&z, &v, &cnt);
     let fit: Vec<f64> = z.iter().map(|x| c0 + c1 * x).collect();
-    let rows: Vec<Vec<f64>> = (0..nb).map(|k| vec![z[k], v[k], fit[k], rho[k]]).collect();
-    write_csv(ctx, "velocity_profile.csv", "z,v_x,line,density", &rows)?;
+    let mass = fluid_mass(sim);
+    let temp = m.profile.sum(|_| true).temperature(mass);
+    let rows: Vec<Vec<f64>> = (0..nb)
+        .map(|k| vec![z[k], v[k], fit[k], rho[k], temp[k][0], temp[k][1], temp[k][2]])
+        .collect();
+    write_csv(
+        ctx,
+        "velocity_profile.csv",
+        "z,v_x,line,density,kbt_normal,kbt_spanwise,kbt_flow",
+        &rows,
+    )?;
+    // η(z) at the bin edges from the measured wall stress (constant across the gap); the
+    // plateau is trimmed symmetrically from both walls
+    let w = gap / nb as f64;
+    let eta_of = |take: &dyn Fn(usize) -> bool| -> Vec<f64> {
+        let s = m.profile.sum(take);
+        let v = s.mean_velocity();
+        let sigma = block_mean(&m.stress, take);
+        (1..nb).map(|e| sigma / ((v[e] - v[e - 1]) / w)).collect()
+    };
+    // two paths from the mid-plane, one towards each plate (edge k lies at (k + 1)·w)
+    let mid = (nb - 1) / 2;
+    let paths = vec![(mid..nb - 1).collect(), (0..mid).rev().collect()];
+    let vp = viscosity_profile(m, (1..nb).map(|e| lower + e as f64 * w).collect(), eta_of, paths);
+    write_csv(
+        ctx,
+        "viscosity_profile.csv",
+        "z,eta,standard_error,in_plateau",
+        &vp.rows(),
+    )?;
     let slip_lo = ((c0 + c1 * lower) + u) / (2.0 * u);
     let slip_hi = (u - (c0 + c1 * upper)) / (2.0 * u);
+    let t = mean_temperature(&cnt, &temp);
     Ok(json!({
         "geometry": { "gap": gap, "width": [plan.box_lengths.x, plan.box_lengths.y], "wall_speed": u },
-        "profile": { "z": z, "v_x": v, "line": fit, "density": rho, "samples": samples },
+        "profile": { "z": z, "v_x": v, "line": fit, "density": rho, "samples": samples,
+                     "kbt": { "normal": temp.iter().map(|t| t[0]).collect::<Vec<_>>(), "spanwise": temp.iter().map(|t| t[1]).collect::<Vec<_>>(), "flow": temp.iter().map(|t| t[2]).collect::<Vec<_>>() } },
         "line": { "intercept": c0, "shear_rate": c1, "no_slip_shear_rate": 2.0 * u / gap, "slip_fraction_lower": slip_lo, "slip_fraction_upper": slip_hi },
         "shear_stress": { "mean": sigma, "standard_error": sigma_se, "samples": m.stress.len() },
-        "viscosity": { "value": sigma / c1, "standard_error": sigma_se / c1.abs() },
+        "viscosity": vp.summary("the wall shear stress (pair forces on the wall particles + reflection impulses)"),
+        "viscosity_whole_line": { "value": sigma / c1, "standard_error": sigma_se / c1.abs() },
+        "viscosity_profile": vp.json(),
+        "temperature": { "mean": (t[0] + t[1] + t[2]) / 3.0, "normal": t[0], "spanwise": t[1], "flow": t[2],
+                         "definition": "m⟨(v − ū(z))²⟩ per component over the sampled steps, ū(z) the measured mean velocity of the particle's bin" },
     }))
+}
+
+/// Mass of a fluid particle.
+fn fluid_mass(sim: &Simulation<Walls>) -> f64 {
+    sim.field().types()[walls::FLUID_TYPE as usize].mass
+}
+
+/// Count-weighted mean of a temperature profile per component (empty bins left out).
+fn mean_temperature(count: &[f64], temp: &[[f64; 3]]) -> [f64; 3] {
+    let n: f64 = count.iter().sum();
+    std::array::from_fn(|c| {
+        (0..count.len())
+            .filter(|&k| count[k] > 0.0)
+            .map(|k| count[k] * temp[k][c])
+            .sum::<f64>()
+            / n
+    })
 }
 
 /// The results every wall scenario reports, added to the kind's own (`specific`): the schedule,
@@ -1015,6 +1378,6 @@ pub fn run_couette(
 ) -> Result<serde_json::Value, RunError> {
     let plan = couette_plan(s);
     let (sim, m, source) = drive(&plan, ctx, checkpoint)?;
-    let specific = couette_results(&plan, ctx, &m)?;
+    let specific = couette_results(&plan, ctx, &sim, &m)?;
     wall_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step), specific)
 }

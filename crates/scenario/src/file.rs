@@ -337,6 +337,10 @@ pub enum InitialWallForce {
     Zero,
     /// The integrated conservative force of a half-space of fluid, πρa(rc − h)³(rc + 3h)/(12 rc).
     HalfSpace,
+    /// The converged profile of an earlier adaptive run of the same fluid, geometry, bins,
+    /// control law and reflection, from the cache directory (zero when there is none). The
+    /// summary names the file it came from.
+    Cached,
 }
 
 /// `[walls]`: reflection and the adaptive near-wall force (docs/walls.md).
@@ -365,11 +369,14 @@ pub struct WallsSection {
     #[serde(default = "w_iters")]
     pub adapt_iterations: u64,
     /// Initial force profile: `"zero"` (default; the frozen wall particles supply the
-    /// repulsion) or `"half-space"` (πρa(rc − h)³(rc + 3h)/(12rc)).
+    /// repulsion), `"half-space"` (πρa(rc − h)³(rc + 3h)/(12rc)) or `"cached"` (the converged
+    /// profile of an earlier adaptive run with the same fluid, geometry, bins, law and
+    /// reflection, from the cache directory; zero when there is none).
     #[serde(default)]
     pub initial: InitialWallForce,
-    /// A force-profile CSV, relative to the scenario file: read if it exists and matches the
-    /// fluid and bins (then used instead of `initial`), written after adaptation.
+    /// A force-profile CSV to start from (e.g. a previous run's `wall_force.csv`), relative to
+    /// the scenario file: used instead of `initial` when it matches the fluid and bins. Only
+    /// read, never written.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub force_file: Option<PathBuf>,
 }
