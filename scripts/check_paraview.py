@@ -3,7 +3,7 @@
 #   BASE.xmf / BASE.xmf3: the fixture of crates/io/examples/paraview_fixture.rs (NV vertices,
 #   NT triangles, NF fluid particles, 5 frames, a 4x3x2 density field holding 3 + k per model
 #   volume), read with the XDMF Reader (XDMF 2) and Xdmf3ReaderS (XDMF 3).
-#   SCREENSHOT: a PNG of the membrane at frame 2, written and checked to be non-empty.
+#   SCREENSHOT: a PNG of frame 2 (all blocks), written and checked to be a non-trivial file.
 #   FLUID_XMF: the .xmf of a `hemodpd run` dpd-fluid trajectory, with its frame and particle count.
 import os, sys
 from paraview.simple import *
@@ -47,7 +47,7 @@ for make, ext in [(lambda f: XDMFReader(FileNames=[f]), ".xmf"), (lambda f: Xdmf
           % (ext, len(ts), nv, nt, nf, lo, hi))
     Delete(r)
 
-# a rendered picture of the membrane at frame 2
+# a rendered picture of frame 2 (all blocks: membrane, fluid, density field coloured by default)
 r = XDMFReader(FileNames=[base + ".xmf"])
 r.UpdatePipelineInformation()
 view = GetActiveViewOrCreate("RenderView")

@@ -4,7 +4,7 @@
 #   1. writes the fixture trajectory of crates/io/examples/paraview_fixture.rs and checks, with
 #      `xvfb-run pvpython scripts/check_paraview.py`, that the XDMF 2 (.xmf, XDMF Reader) and
 #      XDMF 3 (.xmf3, Xdmf3ReaderS) files give every frame, block, point, cell and array value
-#      expected, and renders a screenshot of the membrane (checked to be a non-empty PNG);
+#      expected, and renders a screenshot of frame 2 (checked to be a non-empty PNG);
 #   2. runs a small `hemodpd run scenarios/dpd-fluid.toml` and checks its trajectory's frames
 #      and particle count in ParaView.
 # Needs pvpython and xvfb-run (Debian: apt-get install paraview python3-paraview xvfb xauth).
@@ -32,11 +32,11 @@ case "$profile" in dev|test) bindir=debug ;; *) bindir="$profile" ;; esac
   --set 'fluid.box_size=[4.0, 4.0, 4.0]' --set run.equilibration_steps=10 --set run.steps=40 \
   --set run.sample_every=10 --set output.trajectory_every_steps=10
 # 4 x 4 x 4 rc at density 3: 192 particles; frames at production steps 0, 10, ..., 40
-xvfb-run -a pvpython scripts/check_paraview.py "$work/pv" "$nv" "$nt" "$nf" "$work/membrane.png" \
+xvfb-run -a pvpython scripts/check_paraview.py "$work/pv" "$nv" "$nt" "$nf" "$work/frame2.png" \
   "$work/fluid/trajectory.xmf" 5 192 >"$work/pvpython.log" 2>&1 || true
 cat "$work/pvpython.log"
 if grep -q '^PV-OK' "$work/pvpython.log"; then
-  echo "check_paraview: PASSED (screenshot $work/membrane.png)"
+  echo "check_paraview: PASSED (screenshot $work/frame2.png)"
 else
   echo "check_paraview: FAILED (log in $work/pvpython.log)" >&2
   exit 1
