@@ -105,9 +105,28 @@ enum Command {
         #[arg(short = 'o', long)]
         output: PathBuf,
     },
-    /// Analyse a trajectory after the fact: per-frame centroid, velocity, diameters, principal
-    /// axes, inclination, asphericity, deformation index, area/volume deviation, and for shear
-    /// runs the tank-treading frequency and tumbling rate. Writes CSV and JSON (and PNGs with --plot).
+    /// Analyse the membrane frames of a trajectory after the fact (CSV + JSON, PNGs with --plot).
+    ///
+    /// Which files get which metrics:
+    ///
+    /// - Any trajectory with a membrane (today: a stretching run's shapes.h5, one frame per
+    ///   force; `hemodpd mesh -o FILE.h5`): per frame the centroid, the velocity (stored vertex
+    ///   velocities, else the centroid's finite difference over the frames' times; a stretching
+    ///   run's frame time is the frame index, so its "velocity" is per frame, not physical), the
+    ///   axial (x) and transverse diameters, the surface gyration tensor's eigenvalues and axes,
+    ///   the inclination in the x-y plane, the asphericity, the deformation index and L/B, and
+    ///   the area and volume with their deviation from /membrane@reference_area/_volume (else
+    ///   frame 0).
+    ///
+    /// - Shear runs only (the file's /extra@flow = "shear", or a scenario name containing
+    ///   "shear"; no shipped scenario writes one yet): also the tumbling and tank-treading rates
+    ///   and frequencies and the inclination's mean and amplitude. They need several frames
+    ///   closer than a quarter turn.
+    ///
+    /// - Fluid-only trajectories (dpd-fluid, poiseuille-tube, couette) hold no membrane and are
+    ///   refused: their results are in summary.json and velocity_profile.csv; open the .xmf in
+    ///   ParaView or the .h5 with h5py (docs/output.md).
+    #[command(verbatim_doc_comment)]
     Analyze {
         trajectory: PathBuf,
         /// Output directory (default: beside the trajectory, NAME.analysis/).
@@ -142,9 +161,17 @@ fn main() {
         }
     });
     if let Err(e) = dispatch(cli) {
-        if let Some(hemodpd_scenario::RunError::Interrupted { .. }) = e.downcast_ref::<hemodpd_scenario::RunError>() {
-            eprintln!("{e}");
-            std::process::exit(130);
+        match e.downcast_ref::<hemodpd_scenario::RunError>() {
+            Some(hemodpd_scenario::RunError::Interrupted { .. }) => {
+                eprintln!("{e}");
+                std::process::exit(130);
+            }
+            // `--resume` on a finished run: nothing to do, nothing written
+            Some(hemodpd_scenario::RunError::Finished { .. }) => {
+                println!("{e}");
+                std::process::exit(0);
+            }
+            _ => {}
         }
         eprintln!("error: {e:#}");
         std::process::exit(1);

@@ -49,6 +49,26 @@ fn frames(dir: &Path) -> (Vec<u64>, usize) {
     (steps, r.field_info("density").map(|i| i.frames).unwrap_or(0))
 }
 
+/// Every file under `dir`: relative path -> (bytes, modification time). Equal snapshots mean
+/// nothing was written, created, removed or touched.
+fn snapshot(dir: &Path) -> std::collections::BTreeMap<PathBuf, (Vec<u8>, std::time::SystemTime)> {
+    let mut out = std::collections::BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let meta = std::fs::metadata(&p).unwrap();
+                let rel = p.strip_prefix(dir).unwrap().to_path_buf();
+                out.insert(rel, (std::fs::read(&p).unwrap(), meta.modified().unwrap()));
+            }
+        }
+    }
+    out
+}
+
 /// Interrupt at step 337 (off every schedule), resume on 2 threads; compare with an
 /// uninterrupted 1-thread run: final positions and velocities bit for bit, the sampled
 /// temperature and pressure means exactly, and the trajectory's frame steps.
@@ -119,33 +139,30 @@ fn bad_checkpoints_are_clear_errors() {
 
 /// Ctrl-C (SIGINT) on a running `hemodpd run`: exit code 130, a checkpoint and the trajectory
 /// are on disk, and `--resume` finishes the run with the same final state as an uninterrupted one.
+///
+/// The signal must arrive while the run is stepping, far from its end: the test waits for the
+/// first periodic checkpoint (step 1000 of 20200), reads its step, and only then sends SIGINT.
+/// A run that finishes anyway (exit 0, or a checkpoint at the last step) fails the test.
 #[test]
 fn ctrl_c_checkpoints_and_resumes() {
+    const TOTAL: u64 = 200 + 20_000;
     let sets = [
         "--set",
-        "fluid.box_size=[8.0, 8.0, 8.0]",
+        "fluid.box_size=[6.0, 6.0, 6.0]",
         "--set",
         "run.equilibration_steps=200",
         "--set",
-        "run.steps=6000",
+        "run.steps=20000",
         "--set",
         "output.trajectory_every_steps=500",
+        "--set",
+        "output.checkpoint_every_steps=1000",
         "--quiet",
         "--threads",
         "1",
     ];
     let bin = env!("CARGO_BIN_EXE_hemodpd");
     let scen = scenario_path();
-    let a = tempfile::tempdir().unwrap();
-    let full = Command::new(bin)
-        .arg("run")
-        .arg(&scen)
-        .args(sets)
-        .arg("--out")
-        .arg(a.path())
-        .output()
-        .unwrap();
-    assert!(full.status.success(), "{}", String::from_utf8_lossy(&full.stderr));
     let b = tempfile::tempdir().unwrap();
     let mut child = Command::new(bin)
         .arg("run")
@@ -153,25 +170,50 @@ fn ctrl_c_checkpoints_and_resumes() {
         .args(sets)
         .arg("--out")
         .arg(b.path())
+        .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    // wait for the run to be under way (its trajectory exists), then interrupt it
+    // wait until the run is under way: its first periodic checkpoint (written atomically, so it
+    // can be read while the run goes on) is on disk
+    let ck_path = b.path().join("checkpoint.h5");
     let t0 = std::time::Instant::now();
-    while !b.path().join("trajectory.h5").exists() && t0.elapsed().as_secs() < 60 {
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    std::thread::sleep(std::time::Duration::from_millis(300));
+    let first = loop {
+        if let Ok(ck) = hemodpd_io::checkpoint::Checkpoint::load(&ck_path) {
+            break ck.step;
+        }
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the run ended before its first checkpoint"
+        );
+        assert!(t0.elapsed().as_secs() < 120, "no checkpoint after 120 s");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    };
+    assert!(
+        first < TOTAL / 2,
+        "the first checkpoint seen is at step {first} of {TOTAL}: too close to the end to interrupt reliably"
+    );
     Command::new("kill")
         .args(["-INT", &child.id().to_string()])
         .status()
         .unwrap();
-    let status = child.wait().unwrap();
-    if status.success() {
-        eprintln!("the run finished before the interrupt arrived; nothing to resume");
-        return;
-    }
-    assert_eq!(status.code(), Some(130));
-    assert!(b.path().join("checkpoint.h5").exists());
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        out.status.code(),
+        Some(130),
+        "SIGINT was sent at step >= {first} of {TOTAL}; the run did not stop with status 130 (did it finish first?): {stderr}"
+    );
+    assert!(stderr.contains("interrupted at step"), "{stderr}");
+    let ck = hemodpd_io::checkpoint::Checkpoint::load(&ck_path).unwrap();
+    assert!(
+        ck.step >= first && ck.step < TOTAL,
+        "the interrupt checkpoint is at step {}, expected between {first} and {TOTAL}",
+        ck.step
+    );
+    assert!(
+        !b.path().join("summary.json").exists(),
+        "an interrupted run wrote summary.json"
+    );
     let resumed = Command::new(bin)
         .args([
             "run",
@@ -184,6 +226,17 @@ fn ctrl_c_checkpoints_and_resumes() {
         .output()
         .unwrap();
     assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
+    // the uninterrupted run, for comparison
+    let a = tempfile::tempdir().unwrap();
+    let full = Command::new(bin)
+        .arg("run")
+        .arg(&scen)
+        .args(sets)
+        .arg("--out")
+        .arg(a.path())
+        .output()
+        .unwrap();
+    assert!(full.status.success(), "{}", String::from_utf8_lossy(&full.stderr));
     let sa: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(a.path().join("summary.json")).unwrap()).unwrap();
     let sb: serde_json::Value =
@@ -192,8 +245,92 @@ fn ctrl_c_checkpoints_and_resumes() {
         sa["results"]["final_state_fingerprint"],
         sb["results"]["final_state_fingerprint"]
     );
-    assert!(sb["results"]["resumed_from_step"].as_u64().unwrap() > 0);
+    assert_eq!(sb["results"]["resumed_from_step"].as_u64(), Some(ck.step));
     assert_eq!(frames(a.path()).0, frames(b.path()).0);
+}
+
+/// `hemodpd run --resume DIR` on a finished run of each scenario kind says that it has finished,
+/// exits with 0, and leaves every file in DIR byte-identical with the same modification time.
+#[test]
+fn resume_of_a_finished_run_says_so_and_touches_nothing() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios");
+    let walls_small = [
+        "walls.update_every=50",
+        "walls.adapt_iterations=1",
+        "run.equilibration_steps=20",
+        "run.flow_steps=20",
+        "run.steps=40",
+        "run.sample_every=5",
+        "run.measure_overhead=false",
+        "output.trajectory_every_steps=20",
+    ];
+    let cases: Vec<(&str, Vec<&str>, &str)> = vec![
+        (
+            "stretching.toml",
+            vec!["membrane.vertices=100", "stretching.forces_pn=[0.0, 20.0]"],
+            "2 of 2 forces done",
+        ),
+        (
+            "dpd-fluid.toml",
+            vec![
+                "fluid.box_size=[4.0, 4.0, 4.0]",
+                "run.equilibration_steps=10",
+                "run.steps=20",
+                "run.sample_every=10",
+                "output.trajectory_every_steps=10",
+            ],
+            "30 of 30 steps done",
+        ),
+        (
+            "poiseuille-tube.toml",
+            [&walls_small[..], &["tube.radius=2.5", "tube.length=4.0"]].concat(),
+            "110 of 110 steps done",
+        ),
+        (
+            "couette.toml",
+            [&walls_small[..], &["plates.gap=4.0", "plates.width=[4.0, 4.0]"]].concat(),
+            "110 of 110 steps done",
+        ),
+    ];
+    for (file, sets, done) in cases {
+        let dir = tempfile::tempdir().unwrap();
+        let force_file = format!(
+            "walls.force_file={:?}",
+            dir.path().join("wall_force_profile.csv").to_str().unwrap()
+        );
+        let mut args: Vec<String> = vec!["run".into(), root.join(file).to_str().unwrap().into()];
+        for s in sets
+            .iter()
+            .copied()
+            .chain((file.contains("tube") || file.contains("couette")).then_some(force_file.as_str()))
+        {
+            args.push("--set".into());
+            args.push(s.into());
+        }
+        let out_dir = dir.path().join("run");
+        args.extend(["--out".into(), out_dir.to_str().unwrap().into(), "--quiet".into()]);
+        let run = Command::new(env!("CARGO_BIN_EXE_hemodpd"))
+            .args(&args)
+            .output()
+            .unwrap();
+        assert!(run.status.success(), "{file}: {}", String::from_utf8_lossy(&run.stderr));
+        assert!(out_dir.join("summary.json").exists(), "{file}");
+        let before = snapshot(&out_dir);
+        // mtimes have a coarse resolution on some file systems: let a rewrite show
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        let again = Command::new(env!("CARGO_BIN_EXE_hemodpd"))
+            .args(["run", "--resume", out_dir.to_str().unwrap(), "--quiet"])
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&again.stdout);
+        let stderr = String::from_utf8_lossy(&again.stderr);
+        assert_eq!(again.status.code(), Some(0), "{file}: {stdout}{stderr}");
+        assert!(
+            stdout.contains("the run has finished") && stdout.contains(done) && stdout.contains("nothing to resume"),
+            "{file}: {stdout}{stderr}"
+        );
+        assert_eq!(before, snapshot(&out_dir), "{file}: files changed");
+    }
 }
 
 /// A small wall scenario with its force file in `dir` (so runs do not share one).
@@ -288,16 +425,22 @@ fn wall_scenarios_resume_bit_identically() {
             expected,
             "{file}: frames lost or duplicated by the resume"
         );
-        // resuming a finished run (its checkpoint is at the last step) reports the same results
-        let (_, again) = in_pool(1, || {
+        // resuming a finished run (its checkpoint is at the last step) is refused as finished,
+        // and touches nothing
+        let before = snapshot(b.path());
+        match in_pool(1, || {
             hemodpd_scenario::resume(b.path(), &RunContext::new(b.path(), 1, false))
-        })
-        .unwrap();
+        }) {
+            Err(RunError::Finished { done, total, .. }) => {
+                assert_eq!((done, total), (350, 350), "{file}: 2 x 50 adapt + 50 flow + 200 steps");
+            }
+            other => panic!("{file}: resuming a finished run gave {other:?}"),
+        }
         assert_eq!(
-            again["near_wall"], full["near_wall"],
-            "{file}: near-wall density after a resume at the end"
+            before,
+            snapshot(b.path()),
+            "{file}: files changed by a resume of a finished run"
         );
-        assert_eq!(bits(&again[key]["value"]), bits(&full[key]["value"]), "{file}");
         // the force file was written after adaptation, in each run's own directory
         assert!(a.path().join("wall_force_profile.csv").exists());
         assert!(b.path().join("wall_force_profile.csv").exists());

@@ -62,6 +62,14 @@ pub enum IoError {
     /// (a frame with another vertex count, an index out of range, too few frames...).
     #[error("{path}: {message}")]
     Invalid { path: PathBuf, message: String },
+    /// A particle type that the trajectory's `u8` types array cannot hold (never truncated).
+    #[error("{path}: particle {index} has type {value}: trajectories store particle types as u8 (0 to {max}); refusing to truncate it")]
+    TypeOutOfRange {
+        path: PathBuf,
+        index: usize,
+        value: u64,
+        max: u8,
+    },
     /// A file-system error (temporary file, rename, fsync, CSV or JSON output).
     #[error("{path}: {source}")]
     Fs {

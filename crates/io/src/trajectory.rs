@@ -398,6 +398,24 @@ impl TrajectoryWriter {
         self.end_frame(&group, frame, step, time)
     }
 
+    /// As [`append_fluid_frame`](Self::append_fluid_frame), with the engine's `u16` particle
+    /// types. The file stores types as `u8`: a type above 255 is an error
+    /// ([`IoError::TypeOutOfRange`]), never a silent truncation, and nothing is written.
+    pub fn append_fluid_frame_u16(
+        &mut self,
+        step: u64,
+        time: f64,
+        positions: &[DVec3],
+        velocities: Option<&[DVec3]>,
+        types: Option<&[u16]>,
+    ) -> Result<()> {
+        let narrow = match types {
+            Some(t) => Some(types_to_u8(&self.path, t)?),
+            None => None,
+        };
+        self.append_fluid_frame(step, time, positions, velocities, narrow.as_deref())
+    }
+
     /// Appends a fluid frame (all particles or a fixed subset): positions, optional velocities
     /// (model units) and optional particle types. The particle count is fixed by the first frame.
     pub fn append_fluid_frame(
@@ -1176,4 +1194,21 @@ impl TrajectoryReader {
 /// Reads the run metadata of a trajectory file.
 pub fn read_trajectory_metadata(path: impl AsRef<Path>) -> Result<RunMetadata> {
     Ok(TrajectoryReader::open(path)?.meta)
+}
+
+/// Converts particle types to the `u8` the trajectory stores, refusing any above 255
+/// ([`IoError::TypeOutOfRange`] names `path`, the particle index and its type).
+pub fn types_to_u8(path: &Path, types: &[u16]) -> Result<Vec<u8>> {
+    types
+        .iter()
+        .enumerate()
+        .map(|(index, &t)| {
+            u8::try_from(t).map_err(|_| IoError::TypeOutOfRange {
+                path: path.to_path_buf(),
+                index,
+                value: t as u64,
+                max: u8::MAX,
+            })
+        })
+        .collect()
 }

@@ -191,6 +191,45 @@ fn writer_rejects_inconsistent_frames() {
     assert_eq!(r.membrane_steps().unwrap(), vec![10, 20]);
 }
 
+/// Particle types beyond the file's u8 are an error naming the particle and its type, not a
+/// silent truncation (300 would be stored as 44): the frame is refused and the file keeps only
+/// the valid frames; types up to 255 round-trip exactly.
+#[test]
+fn particle_types_beyond_u8_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("types.h5");
+    let pos: Vec<DVec3> = (0..4).map(|i| DVec3::X * i as f64).collect();
+    let mut w = TrajectoryWriter::create(&path, &meta()).unwrap();
+    w.append_fluid_frame_u16(0, 0.0, &pos, None, Some(&[0, 1, 254, 255]))
+        .unwrap();
+    let e = w
+        .append_fluid_frame_u16(1, 0.1, &pos, None, Some(&[0, 1, 300, 2]))
+        .unwrap_err();
+    match &e {
+        IoError::TypeOutOfRange { index, value, max, .. } => {
+            assert_eq!((*index, *value, *max), (2, 300, 255));
+        }
+        other => panic!("expected TypeOutOfRange, got {other:?}"),
+    }
+    let msg = e.to_string();
+    assert!(
+        msg.contains("types.h5") && msg.contains("type 300") && msg.contains("u8"),
+        "{msg}"
+    );
+    assert_eq!(
+        hemodpd_io::trajectory::types_to_u8(&path, &[7, 255]).unwrap(),
+        vec![7u8, 255]
+    );
+    w.close().unwrap();
+    let r = TrajectoryReader::open(&path).unwrap();
+    assert_eq!(
+        r.fluid_frames().unwrap(),
+        1,
+        "the refused frame must not be in the file"
+    );
+    assert_eq!(r.fluid_frame(0).unwrap().types, Some(vec![0u8, 1, 254, 255]));
+}
+
 /// Resume: frames after the checkpoint step are dropped, then the run continues; the result
 /// equals the uninterrupted trajectory frame for frame.
 #[test]
@@ -272,19 +311,15 @@ fn open_append_truncates_after_checkpoint_step() {
 
 const CHILD_ENV: &str = "HEMODPD_IO_KILLED_WRITER_PATH";
 
-/// Child half of `killed_writer_leaves_every_flushed_frame`: writes 7 frames and aborts
-/// without closing anything (like a SIGKILL after the last flush). Does nothing otherwise.
-#[test]
-fn killed_writer_child() {
-    let Ok(path) = std::env::var(CHILD_ENV) else {
-        return;
-    };
+/// The child process of `killed_writer_leaves_every_flushed_frame`: writes 7 frames to `path`
+/// and aborts without closing anything (like a SIGKILL after the last flush).
+fn killed_writer_child(path: &str) -> ! {
     let (sphere, tri) = uv_sphere(4, 8);
     let options = WriterOptions {
         xdmf: false,
         ..WriterOptions::default()
     };
-    let mut w = TrajectoryWriter::create_with(&path, &meta(), options).unwrap();
+    let mut w = TrajectoryWriter::create_with(path, &meta(), options).unwrap();
     w.write_mesh(&tri).unwrap();
     for s in 0..7u64 {
         let pos = frame_positions(&sphere, s);
@@ -294,12 +329,23 @@ fn killed_writer_child() {
     std::process::abort();
 }
 
+/// A writer killed after its 7th frame (this test re-runs itself as a child process with
+/// `HEMODPD_IO_KILLED_WRITER_PATH` set; the child writes and aborts) leaves a file with all 7
+/// frames, which can be resumed and analysed.
 #[test]
 fn killed_writer_leaves_every_flushed_frame() {
+    if let Ok(path) = std::env::var(CHILD_ENV) {
+        killed_writer_child(&path);
+    }
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join("killed.h5");
     let status = std::process::Command::new(std::env::current_exe().unwrap())
-        .args(["--exact", "killed_writer_child", "--nocapture", "--test-threads=1"])
+        .args([
+            "--exact",
+            "killed_writer_leaves_every_flushed_frame",
+            "--nocapture",
+            "--test-threads=1",
+        ])
         .env(CHILD_ENV, &path)
         .stdout(std::process::Stdio::null())
         .stderr(std::process::Stdio::null())

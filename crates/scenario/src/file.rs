@@ -526,6 +526,28 @@ pub fn load(path: &Path, sets: &[String]) -> Result<Scenario, ScenarioError> {
                     allowed: format!("an existing mesh file ({} does not exist)", full.display()),
                 });
             }
+            // the model's parameters come from membrane.vertices (coarse-graining from N, Eqs. 8,
+            // 9, 12): a file with another vertex count would get another cell's parameters
+            let mesh = hemodpd_membrane::meshio::read_mesh(&full).map_err(|e| ScenarioError::Value {
+                file: file.clone(),
+                key: "membrane.mesh_file".into(),
+                value: format!("{:?}", m.display().to_string()),
+                allowed: format!(
+                    "a readable closed triangle mesh in µm (OFF, PLY or NAME.vertices.csv + NAME.triangles.csv): {e}"
+                ),
+            })?;
+            let nv = mesh.vertices.len();
+            if nv as i64 != st.membrane.vertices {
+                return Err(ScenarioError::Value {
+                    file,
+                    key: "membrane.mesh_file".into(),
+                    value: format!("{:?} (with {nv} vertices)", m.display().to_string()),
+                    allowed: format!(
+                        "a mesh with membrane.vertices = {} vertices: the model parameters are coarse-grained from N (Eqs. 8, 9, 12), so the file's {nv} vertices and membrane.vertices = {} must agree (set membrane.vertices = {nv})",
+                        st.membrane.vertices, st.membrane.vertices
+                    ),
+                });
+            }
         }
     }
     Ok(s)
@@ -752,6 +774,15 @@ fn validate_fluid(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
     let c = Check { file };
     let f = &s.fluid;
     validate_fluid_params(f, &c)?;
+    if f.gamma <= 0.0 {
+        // σ² = 2γkBT: γ = 0 switches the thermostat off, and the reported temperature would be
+        // compared with a kBT nothing imposes
+        return Err(c.fail(
+            "fluid.gamma",
+            f.gamma,
+            "a positive dissipative coefficient up to 1e4 (γ = 0 switches the DPD thermostat off, so the temperature would not be fluid.kbt; standard: 4.5)",
+        ));
+    }
     let Some(box_size) = f.box_size else {
         return Err(ScenarioError::Missing {
             file: file.into(),
@@ -905,6 +936,20 @@ fn validate_wall_common(
     if w.update_every == 0 {
         return Err(c.fail("walls.update_every", 0, "a positive number of steps"));
     }
+    if w.adaptive && w.adapt_iterations == 0 {
+        return Err(c.fail(
+            "walls.adapt_iterations",
+            0,
+            "a positive number of updates when walls.adaptive = true (zero adapts nothing; set walls.adaptive = false for no adaptation)",
+        ));
+    }
+    if w.adaptive && w.gain == 0.0 {
+        return Err(c.fail(
+            "walls.gain",
+            0,
+            "a positive gain up to 100 when walls.adaptive = true (zero changes nothing; set walls.adaptive = false for no adaptation)",
+        ));
+    }
     validate_stepping(*c, r.timestep, 0.05, r.lambda, r.steps, r.sample_every)?;
     let adapt = if w.adaptive {
         w.adapt_iterations.checked_mul(w.update_every)
@@ -953,13 +998,23 @@ fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
                 what: "the body force per fluid particle (model units, e.g. 0.05), or tube.mean_velocity for a flow held at a mean velocity".into(),
             })
         }
-        (Some(g), _) => c.range(
-        "tube.body_force",
-        g,
-        -10.0,
-        10.0,
-        "a body force between −10 and 10 (model units; 0.05–0.2 keeps the flow laminar and the shear rate moderate)",
-    )?,
+        (Some(g), mean) => {
+            c.range(
+                "tube.body_force",
+                g,
+                -10.0,
+                10.0,
+                "a body force between −10 and 10 (model units; 0.05–0.2 keeps the flow laminar and the shear rate moderate)",
+            )?;
+            // no drive, no flow: the viscosity from the profile's curvature would be 0/0
+            if g == 0.0 && mean.is_none() {
+                return Err(c.fail(
+                    "tube.body_force",
+                    g,
+                    "a non-zero body force between −10 and 10 (zero drives no flow: the viscosity and the parabola fit would be meaningless), or tube.mean_velocity for a flow held at a mean velocity",
+                ));
+            }
+        }
         (None, Some(_)) => {}
     }
     if let Some(l) = s.tube.length_scale_um_per_rc {
@@ -1039,13 +1094,11 @@ fn validate_couette(s: &CouetteScenario, file: &str) -> Result<(), ScenarioError
             "a box edge of at least 3 cut-offs",
         )?;
     }
-    c.range(
-        "plates.wall_speed",
-        s.plates.wall_speed,
-        -5.0,
-        5.0,
-        "a plate speed between −5 and 5 (model units; |U|·Δt must stay well below the cell size)",
-    )?;
+    let speed_allowed = "a non-zero plate speed between −5 and 5 (model units; |U|·Δt must stay well below the cell size; zero shears nothing, so the viscosity, stress over shear rate, would be 0/0)";
+    c.range("plates.wall_speed", s.plates.wall_speed, -5.0, 5.0, speed_allowed)?;
+    if s.plates.wall_speed == 0.0 {
+        return Err(c.fail("plates.wall_speed", s.plates.wall_speed, speed_allowed));
+    }
     if s.fluid.density * s.plates.width[0] * s.plates.width[1] * (s.plates.gap + 2.0 * rc) > 5e8 {
         return Err(c.fail("plates.gap", s.plates.gap, "a channel holding at most 5e8 particles"));
     }

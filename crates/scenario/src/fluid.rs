@@ -206,8 +206,9 @@ fn write_frame(s: &FluidScenario, w: &mut TrajectoryWriter, sim: &Simulation) ->
     let stride = s.output.particle_stride as usize;
     let pos: Vec<DVec3> = p.pos.iter().step_by(stride).copied().collect();
     let vel: Vec<DVec3> = p.vel.iter().step_by(stride).copied().collect();
-    let types: Vec<u8> = p.ptype.iter().step_by(stride).map(|&t| t as u8).collect();
-    w.append_fluid_frame(sim.step_count(), sim.time(), &pos, Some(&vel), Some(&types))
+    // u16 engine types; a type the file's u8 cannot hold is an error, not a truncation
+    let types: Vec<u16> = p.ptype.iter().step_by(stride).copied().collect();
+    w.append_fluid_frame_u16(sim.step_count(), sim.time(), &pos, Some(&vel), Some(&types))
         .map_err(out_err)?;
     if s.output.field_bins > 0 {
         let (grid, rho, vel) = binned_fields(sim, s.output.field_bins as usize);

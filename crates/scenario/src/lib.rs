@@ -85,6 +85,35 @@ pub enum RunError {
     Interrupted { step: u64, dir: PathBuf },
     #[error("cannot resume from {dir}: {message}")]
     Resume { dir: PathBuf, message: String },
+    /// `--resume` on a run whose checkpoint is already at its end: nothing to do, no file is
+    /// touched. Not a failure (the CLI exits 0 with this message).
+    #[error("{dir}: the run has finished ({done} of {total} {unit} done); nothing to resume. Its results are in {}", dir.join("summary.json").display())]
+    Finished {
+        dir: PathBuf,
+        done: u64,
+        total: u64,
+        unit: &'static str,
+    },
+}
+
+/// The end of a scenario's schedule, in the unit its checkpoint's step counts: (total, unit).
+/// Stretching counts forces done; the time-stepping kinds count steps (equilibration included
+/// for `dpd-fluid`; adaptation, flow development and sampling for the wall kinds).
+pub fn schedule_end(scenario: &Scenario) -> (u64, &'static str) {
+    fn walls_total(w: &file::WallsSection, r: &file::WallRunSection) -> u64 {
+        let adapt = if w.adaptive {
+            w.adapt_iterations.saturating_mul(w.update_every)
+        } else {
+            0
+        };
+        adapt.saturating_add(r.flow_steps).saturating_add(r.steps)
+    }
+    match scenario {
+        Scenario::Stretching(s) => (s.stretching.forces_pn.len() as u64, "forces"),
+        Scenario::DpdFluid(s) => (s.run.equilibration_steps.saturating_add(s.run.steps), "steps"),
+        Scenario::PoiseuilleTube(s) => (walls_total(&s.walls, &s.run), "steps"),
+        Scenario::Couette(s) => (walls_total(&s.walls, &s.run), "steps"),
+    }
 }
 
 /// Resumes the run whose checkpoint is in `dir` (written by an earlier run into the same
@@ -119,6 +148,16 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
             ck.seed,
             scenario.seed()
         )));
+    }
+    // a finished run: say so and touch nothing (appending to its files would repeat the end)
+    let (total, unit) = schedule_end(&scenario);
+    if ck.step >= total {
+        return Err(RunError::Finished {
+            dir: dir.to_path_buf(),
+            done: ck.step,
+            total,
+            unit,
+        });
     }
     let ctx = RunContext {
         out_dir: dir.to_path_buf(),

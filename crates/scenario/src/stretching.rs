@@ -104,8 +104,9 @@ pub fn mesh_of(s: &StretchingScenario) -> Result<(Mesh, serde_json::Value), RunE
     match &s.membrane.mesh_file {
         Some(f) => {
             let path = s.base_dir.join(f);
-            let mesh = mesh_cache::user_mesh(&path)?;
-            Ok((mesh, json!({ "source": "file", "path": path })))
+            // centred and on its principal axes, as the generated mesh is (the pose is reported)
+            let (mesh, pose) = mesh_cache::user_mesh(&path)?;
+            Ok((mesh, json!({ "source": "file", "path": path, "pose_change": pose })))
         }
         None => {
             let (mesh, origin) = mesh_cache::relaxed_mesh(s.membrane.vertices as usize, s.seed)?;
@@ -324,12 +325,15 @@ pub fn run_from(
         if let Some(w) = shapes.as_mut() {
             if let Err(e) = write_shape(w, k as u64, p).and_then(|_| w.flush()) {
                 step_error = Some(out_err(e));
+                failed.set(true); // stop the solver: no force is solved past an output error
                 return;
             }
         }
         saved.push(p.clone());
         if let Err(e) = save_checkpoint(s, ctx, &saved, earlier_seconds + t0.elapsed().as_secs_f64()) {
             step_error = Some(e);
+            failed.set(true);
+            return;
         }
         if let Some(last) = saved.last_mut() {
             last.positions = Vec::new();
