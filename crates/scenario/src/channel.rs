@@ -523,8 +523,8 @@ fn write_frame(plan: &Plan, w: &mut TrajectoryWriter, sim: &Simulation<Walls>) -
     let stride = plan.output.particle_stride as usize;
     let pos: Vec<DVec3> = p.pos.iter().step_by(stride).copied().collect();
     let vel: Vec<DVec3> = p.vel.iter().step_by(stride).copied().collect();
-    let types: Vec<u8> = p.ptype.iter().step_by(stride).map(|&t| t as u8).collect();
-    w.append_fluid_frame(sim.step_count(), sim.time(), &pos, Some(&vel), Some(&types))
+    let types: Vec<u16> = p.ptype.iter().step_by(stride).copied().collect();
+    w.append_fluid_frame_u16(sim.step_count(), sim.time(), &pos, Some(&vel), Some(&types))
         .map_err(out_err)
 }
 
