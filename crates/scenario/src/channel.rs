@@ -11,7 +11,8 @@
 //! | `[A + F, A + F + S)` | sampling (S = `run.steps`), split into [`BLOCKS`] blocks for standard errors |
 //!
 //! then fit, and time the same number of fluid particles in a periodic box for the wall overhead.
-//! The force profile is written when adaptation ends. Frames go to `trajectory.h5` every
+//! The force profile is written to the run directory (and, after adaptation, to the cache) when
+//! adaptation ends. Frames go to `trajectory.h5` every
 //! `output.trajectory_every_steps` steps; `checkpoint.h5` (particles, the wall state and the
 //! sums sampled so far) is written every `output.checkpoint_every_steps` steps, at the end and on
 //! Ctrl-C, and `hemodpd run --resume DIR` continues bit-identically.
@@ -39,6 +40,10 @@ pub const BLOCKS: usize = 10;
 /// Departure, in standard errors, of the next two edges' mean from the plateau so far that
 /// ends the plateau: 3σ, a 0.27 % chance per step in the bulk.
 const DEPARTURE_Z: f64 = 3.0;
+
+/// Largest relative standard error of an edge's η for it to enter the plateau: below ≈ 20 % the
+/// error of a ratio is close to Gaussian and its jackknife estimate can be trusted.
+const MAX_RELATIVE_ERROR: f64 = 0.2;
 
 /// Fewest bin edges the plateau of η(r) must hold; with fewer the viscosity is not reported.
 const MIN_PLATEAU_EDGES: usize = 3;
@@ -913,7 +918,12 @@ fn viscosity_profile(
         ((nj - 1.0) / nj * x.iter().map(|v| (v - mean).powi(2)).sum::<f64>()).sqrt()
     };
     let se: Vec<f64> = (0..eta.len()).map(|k| jack_se(&|j: &Vec<f64>| j[k])).collect();
-    let ok = |k: usize| eta[k].is_finite() && eta[k] > 0.0 && se[k].is_finite() && se[k] > 0.0;
+    // η = σ/(dv/dx) is a ratio; where dv/dx is poorly known (near the axis of a tube, dv/dx →
+    // 0) its distribution is skewed and its jackknife error unreliable, so an edge known to
+    // worse than ±MAX_RELATIVE_ERROR is left out of the plateau (it still appears in the profile)
+    let ok = |k: usize| {
+        eta[k].is_finite() && eta[k] > 0.0 && se[k].is_finite() && se[k] > 0.0 && se[k] < MAX_RELATIVE_ERROR * eta[k]
+    };
     // the valid edges of each path; the first of each seeds the plateau
     let paths: Vec<Vec<usize>> = paths
         .into_iter()
@@ -972,13 +982,13 @@ fn viscosity_profile(
 
 impl ViscosityProfile {
     /// The `viscosity` entry of a summary, with the extent of the plateau.
-    fn summary(&self, stress: &str) -> serde_json::Value {
+    fn summary(&self, value: &str) -> serde_json::Value {
         match self.plateau {
             Some((eta, se, chi2)) => {
                 let (lo, hi) = (self.plateau_edges[0], self.plateau_edges[self.plateau_edges.len() - 1]);
                 json!({ "value": eta, "standard_error": se, "plateau_edges": self.plateau_edges.len(),
                         "plateau_from": self.r[lo], "plateau_to": self.r[hi], "chi2_per_dof": chi2,
-                        "method": format!("η(x) = σ/(dv/dx) at each bin edge, σ from {stress}, dv/dx from adjacent bins; the plateau is the inverse-variance mean over the edges from the centre out to where the mean of the next two edges departs from it by more than 3 standard errors; standard errors by jackknife over the time blocks") })
+                        "method": format!("η(x) = σ/(dv/dx) at each bin edge, dv/dx from adjacent bins, σ from {value}; the plateau runs over the edges from the centre out to where the mean of the next two edges departs from the plateau so far by more than 3 standard errors; standard errors by jackknife over the time blocks") })
             }
             None => {
                 json!({ "value": null, "note": format!("η(x) has no plateau of {MIN_PLATEAU_EDGES} or more consistent bin edges (a longer run, a wider channel or more run.profile_bins)") })
@@ -999,6 +1009,30 @@ impl ViscosityProfile {
     fn json(&self) -> serde_json::Value {
         json!({ "edge": self.r, "eta": self.eta, "standard_error": self.se })
     }
+}
+
+/// Jackknife standard error over the time blocks of a quantity computed from the blocks for
+/// which `take(block)` holds.
+fn jackknife_se(m: &Measurement, f: impl Fn(&dyn Fn(usize) -> bool) -> f64) -> f64 {
+    let used: Vec<usize> = (0..BLOCKS).filter(|&b| m.profile.samples[b] > 0).collect();
+    if used.len() < 2 {
+        return f64::NAN;
+    }
+    let x: Vec<f64> = used.iter().map(|&out| f(&|b| b != out)).collect();
+    let n = x.len() as f64;
+    let mean = x.iter().sum::<f64>() / n;
+    ((n - 1.0) / n * x.iter().map(|v| (v - mean).powi(2)).sum::<f64>()).sqrt()
+}
+
+/// Mean of the per-step wall stress and its standard error over the [`BLOCKS`] time blocks of
+/// the sampling phase. Not `observe::block_error`: the random force on the wall particles makes
+/// the per-step stress a large white noise that the fluid gives back within a few steps (the
+/// series is anticorrelated), so short blocks overstate the error several times over; blocks of
+/// a tenth of the run do not.
+fn stress_mean_se(series: &[f64]) -> (f64, f64) {
+    observe::block_average(series, BLOCKS)
+        .or_else(|_| observe::block_average(series, 2))
+        .unwrap_or((f64::NAN, f64::NAN))
 }
 
 /// Mean of the per-step stress series over the blocks for which `take(block)` holds (the
@@ -1129,15 +1163,13 @@ fn tube_results(
     )?;
     // wall shear stress against the momentum balance n̄ g R / 2 (the wall carries the whole
     // body force in steady flow)
-    let (tau, tau_se) = observe::block_error(&m.stress)
-        .or_else(|_| observe::block_average(&m.stress, 2))
-        .unwrap_or((f64::NAN, f64::NAN));
+    let (tau, tau_se) = stress_mean_se(&m.stress);
     let tau_expected = n_mean * g * radius / 2.0;
     let um = match plan.length_scale_um_per_rc {
         Some(l) => json!({ "diameter_um": 2.0 * radius * l, "length_um": length * l }),
         None => serde_json::Value::Null,
     };
-    let viscosity = vp.summary("the axial momentum balance σ_rz(r) = −g N(<r)/(2πrL) with the measured density");
+    let viscosity = vp.summary("the axial momentum balance σ_rz(r) = −g N(<r)/(2πrL) with the measured density; the value is the inverse-variance mean of η over the plateau");
     let t_mean = mean_temperature(&cnt, &temp);
     Ok(json!({
         "geometry": { "radius": radius, "length": length, "si": um },
@@ -1183,9 +1215,7 @@ fn couette_results(
     let upper = lower + gap;
     let nb = plan.run.profile_bins;
     let samples = m.profile.total_samples();
-    let (sigma, sigma_se) = observe::block_error(&m.stress)
-        .or_else(|_| observe::block_average(&m.stress, 2))
-        .unwrap_or((f64::NAN, f64::NAN));
+    let (sigma, sigma_se) = stress_mean_se(&m.stress);
     let z: Vec<f64> = (0..nb).map(|b| lower + (b as f64 + 0.5) * gap / nb as f64).collect();
     let (cnt, v) = m.profile.mean();
     let rho: Vec<f64> = cnt
@@ -1217,7 +1247,21 @@ fn couette_results(
     // two paths from the mid-plane, one towards each plate (edge k lies at (k + 1)·w)
     let mid = (nb - 1) / 2;
     let paths = vec![(mid..nb - 1).collect(), (0..mid).rev().collect()];
-    let vp = viscosity_profile(m, (1..nb).map(|e| lower + e as f64 * w).collect(), eta_of, paths);
+    let mut vp = viscosity_profile(m, (1..nb).map(|e| lower + e as f64 * w).collect(), eta_of, paths);
+    // the stress is the same at every edge, so the plateau's viscosity is σ over the slope of
+    // one line through the bins the plateau spans (bins k_lo … k_hi + 1 for edges k_lo … k_hi):
+    // the mean slope there, far less noisy than a weighted mean of the edges' ratios
+    if let (Some((_, _, chi2)), Some(&lo), Some(&hi)) = (vp.plateau, vp.plateau_edges.first(), vp.plateau_edges.last())
+    {
+        let line_eta = |take: &dyn Fn(usize) -> bool| {
+            let s = m.profile.sum(take);
+            let v = s.mean_velocity();
+            let bins = lo..hi + 2;
+            let (_, slope) = fit_line(&z[bins.clone()], &v[bins.clone()], &s.count[bins]);
+            block_mean(&m.stress, take) / slope
+        };
+        vp.plateau = Some((line_eta(&|_| true), jackknife_se(m, line_eta), chi2));
+    }
     write_csv(
         ctx,
         "viscosity_profile.csv",
@@ -1233,7 +1277,7 @@ fn couette_results(
                      "kbt": { "normal": temp.iter().map(|t| t[0]).collect::<Vec<_>>(), "spanwise": temp.iter().map(|t| t[1]).collect::<Vec<_>>(), "flow": temp.iter().map(|t| t[2]).collect::<Vec<_>>() } },
         "line": { "intercept": c0, "shear_rate": c1, "no_slip_shear_rate": 2.0 * u / gap, "slip_fraction_lower": slip_lo, "slip_fraction_upper": slip_hi },
         "shear_stress": { "mean": sigma, "standard_error": sigma_se, "samples": m.stress.len() },
-        "viscosity": vp.summary("the wall shear stress (pair forces on the wall particles + reflection impulses)"),
+        "viscosity": vp.summary("the wall shear stress (pair forces on the wall particles + reflection impulses); the value is σ over the slope of a count-weighted line through the bins the plateau spans"),
         "viscosity_whole_line": { "value": sigma / c1, "standard_error": sigma_se / c1.abs() },
         "viscosity_profile": vp.json(),
         "temperature": { "mean": (t[0] + t[1] + t[2]) / 3.0, "normal": t[0], "spanwise": t[1], "flow": t[2],
