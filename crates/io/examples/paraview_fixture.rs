@@ -12,40 +12,10 @@ use glam::DVec3;
 use hemodpd_io::trajectory::{GridSpec, RunMetadata, TrajectoryWriter};
 use hemodpd_io::{Quantity, UnitSystem};
 
-fn uv_sphere(n_lat: usize, n_lon: usize) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    let mut v = vec![DVec3::Z];
-    for i in 1..n_lat {
-        let th = std::f64::consts::PI * i as f64 / n_lat as f64;
-        for j in 0..n_lon {
-            let ph = 2.0 * std::f64::consts::PI * j as f64 / n_lon as f64;
-            v.push(DVec3::new(th.sin() * ph.cos(), th.sin() * ph.sin(), th.cos()));
-        }
-    }
-    v.push(-DVec3::Z);
-    let ring = |i: usize, j: usize| (1 + (i - 1) * n_lon + j % n_lon) as u32;
-    let south = (v.len() - 1) as u32;
-    let mut t = Vec::new();
-    for j in 0..n_lon {
-        t.push([0, ring(1, j), ring(1, j + 1)]);
-        t.push([south, ring(n_lat - 1, j + 1), ring(n_lat - 1, j)]);
-    }
-    for i in 1..n_lat - 1 {
-        for j in 0..n_lon {
-            t.push([ring(i, j), ring(i + 1, j), ring(i + 1, j + 1)]);
-            t.push([ring(i, j), ring(i + 1, j + 1), ring(i, j + 1)]);
-        }
-    }
-    let vol: f64 = t
-        .iter()
-        .map(|f| v[f[0] as usize].dot(v[f[1] as usize].cross(v[f[2] as usize])))
-        .sum();
-    if vol < 0.0 {
-        for f in &mut t {
-            f.swap(1, 2);
-        }
-    }
-    (v, t)
-}
+// the io tests' UV sphere (the same mesh the former ParaView test wrote)
+#[path = "../tests/common/mod.rs"]
+mod common;
+use common::uv_sphere;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let path = std::env::args().nth(1).ok_or("usage: paraview_fixture OUT.h5")?;
