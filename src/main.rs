@@ -451,7 +451,8 @@ fn plot(inputs: &[PathBuf], output: &Path, title: &str) -> Result<()> {
         let label_dirs: Vec<(String, PathBuf)> =
             if input.is_file() && input.file_name().is_some_and(|n| n == "sweep.json") {
                 let sw = read_json(input)?;
-                // `dir` is relative to the sweep directory (older files: to the working directory)
+                // `dir` is the sweep directory as given to `sweep` joined with the point's
+                // directory; `point_dir` is the point's directory inside the sweep directory
                 let base = input.parent().unwrap_or(Path::new("."));
                 sw["runs"]
                     .as_array()
@@ -460,10 +461,14 @@ fn plot(inputs: &[PathBuf], output: &Path, title: &str) -> Result<()> {
                     .filter(|r| r["status"].as_str().is_none_or(|s| s == "done"))
                     .map(|r| {
                         let dir = PathBuf::from(r["dir"].as_str().unwrap_or(""));
-                        let in_sweep = base.join(&dir);
+                        let in_sweep = base.join(r["point_dir"].as_str().unwrap_or(""));
                         (
                             r["label"].as_str().unwrap_or("").to_string(),
-                            if in_sweep.exists() { in_sweep } else { dir },
+                            if r["point_dir"].is_string() && in_sweep.exists() {
+                                in_sweep
+                            } else {
+                                dir
+                            },
                         )
                     })
                     .collect()

@@ -658,6 +658,8 @@ pub struct Row {
 
 /// The table of a sweep directory, in grid order.
 pub struct Table {
+    /// The sweep directory as given (the `dir` of each run is inside it).
+    pub dir: PathBuf,
     pub kind: String,
     pub manifest: Manifest,
     pub rows: Vec<Row>,
@@ -713,6 +715,7 @@ impl Table {
             rows.push(row);
         }
         Ok(Table {
+            dir: dir.to_path_buf(),
             kind: m.scenario_kind.clone(),
             manifest: m.clone(),
             rows,
@@ -731,7 +734,7 @@ impl Table {
                 let overrides: Vec<String> = self.manifest.points[r.index].overrides(&self.manifest.sets);
                 let mut run = json!({
                     "index": r.index, "label": r.label, "values": values, "overrides": overrides,
-                    "dir": r.dir, "status": r.status, "error": r.error, "wall_time_s": r.wall_time_s,
+                    "dir": self.dir.join(&r.dir), "point_dir": r.dir, "status": r.status, "error": r.error, "wall_time_s": r.wall_time_s,
                     "resumed_from_step": r.resumed_from, "scenario_kind": self.kind, "metrics": r.metrics,
                 });
                 if self.kind == "stretching" {
@@ -764,7 +767,7 @@ impl Table {
         header.extend(self.manifest.axes.iter().map(|a| a.key.clone()));
         header.push("status".into());
         header.extend(cols.iter().map(|c| c.0.to_string()));
-        header.extend(["wall_time_s".to_string(), "dir".to_string()]);
+        header.extend(["wall_time_s".to_string(), "point_dir".to_string()]);
         let mut out = header.iter().map(|h| csv_field(h)).collect::<Vec<_>>().join(",");
         out.push('\n');
         for r in &self.rows {
