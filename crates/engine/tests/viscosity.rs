@@ -259,13 +259,7 @@ fn viscosity_box_dependence() {
         }
         sums.sort_by(|a, b| a.0.partial_cmp(&b.0).unwrap());
         let (m, se) = mean_se(&interior);
-        let prof: Vec<String> = sums
-            .iter()
-            .map(|s| format!("{:.1}:{:.3}", s.0, s.1 / s.2 as f64))
-            .collect();
-        eprintln!(
-            "SUMMARY {lxy}x{lxy}x{lz}: interior fit η = {m:.4} ± {se:.4}; η(d) {}",
-            prof.join(" ")
-        );
+        let prof: Vec<String> = sums.iter().map(|s| format!("{:.1}:{:.3}", s.0, s.1 / s.2 as f64)).collect();
+        eprintln!("SUMMARY {lxy}x{lxy}x{lz}: interior fit η = {m:.4} ± {se:.4}; η(d) {}", prof.join(" "));
     }
 }
