@@ -160,6 +160,14 @@ pub fn open_or_create(dir: &Path, now: &Manifest) -> Result<bool> {
                 dir.display()
             );
         }
+        if old.scenario_file != now.scenario_file {
+            // the same content at another path (the file moved): the points run from the new one
+            Manifest {
+                scenario_file: now.scenario_file.clone(),
+                ..old
+            }
+            .write(dir)?;
+        }
         return Ok(true);
     }
     if dir.exists() {
