@@ -8,6 +8,8 @@ use hemodpd_scenario::{mesh_cache, RunContext};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 
+mod sweep;
+
 #[derive(Parser)]
 #[command(
     name = "hemodpd",
@@ -62,23 +64,77 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Run a scenario for every combination of values: --vary membrane.vertices=100,500,5000.
-    /// Each run goes to DIR/<key=value,...>/; DIR/sweep.json lists them.
+    /// Run a scenario for every point of a grid: --vary membrane.vertices=100,500,5000.
+    /// Each point goes to DIR/<key=value,...>/; DIR/sweep.csv and DIR/sweep.json tabulate them.
+    /// Points run in parallel (--jobs) as child processes; run the same command again to
+    /// continue an interrupted sweep. --emit-slurm writes a Slurm job-array script instead
+    /// (docs/sweeps.md).
     Sweep {
         scenario: PathBuf,
-        /// KEY=V1,V2,... (repeatable: the runs are the cartesian product).
+        /// KEY=V1,V2,... (repeatable: the points are the cartesian product, first axis slowest).
         #[arg(long = "vary", value_name = "KEY=V1,V2,...", required = true)]
         vary: Vec<String>,
+        /// Pair the i-th values of every --vary instead of combining them all (equal lengths).
+        #[arg(long)]
+        zip: bool,
         /// Override a key in every run (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         sets: Vec<String>,
         /// Output directory (default: runs/<scenario name>-sweep).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "emit_slurm")]
         out: Option<PathBuf>,
+        /// Points run at once.
+        #[arg(long, default_value_t = 1, conflicts_with = "emit_slurm")]
+        jobs: usize,
+        /// Worker threads of each point (default: the cores divided by --jobs).
+        #[arg(long = "threads-per-job", alias = "threads", value_name = "T")]
+        threads_per_job: Option<usize>,
+        /// Allow a grid of more than 100 points.
+        #[arg(long)]
+        yes: bool,
+        #[arg(long)]
+        quiet: bool,
+        /// Write DIR/sweep.sbatch, a Slurm job array with one task per point, instead of running
+        /// (DIR is the sweep directory; collect with `hemodpd sweep-collect DIR`).
+        #[arg(long, value_name = "DIR")]
+        emit_slurm: Option<PathBuf>,
+        /// Slurm time limit of each task (--time).
+        #[arg(long, value_name = "TIME", default_value = "01:00:00", requires = "emit_slurm")]
+        slurm_time: String,
+        /// Slurm memory of each task (--mem, e.g. 4G; default: the cluster's).
+        #[arg(long, value_name = "SIZE", requires = "emit_slurm")]
+        slurm_mem: Option<String>,
+        /// Slurm partition (default: the cluster's).
+        #[arg(long, value_name = "NAME", requires = "emit_slurm")]
+        slurm_partition: Option<String>,
+        /// Slurm account (default: yours).
+        #[arg(long, value_name = "NAME", requires = "emit_slurm")]
+        slurm_account: Option<String>,
+        /// CPUs of each task (--cpus-per-task), also its threads.
+        #[arg(long, value_name = "N", default_value_t = 1, requires = "emit_slurm")]
+        slurm_cpus: usize,
+    },
+    /// Run one point of a sweep directory (what each Slurm array task runs): a finished point is
+    /// skipped, one with a checkpoint resumes, any other runs from the start.
+    SweepTask {
+        /// The sweep directory (with sweep-manifest.json).
+        dir: PathBuf,
+        /// The point's index (0-based, the Slurm array task id).
+        index: usize,
+        /// Worker threads (default: all cores).
         #[arg(long)]
         threads: Option<usize>,
         #[arg(long)]
         quiet: bool,
+        /// Checkpoint and stop when standard input closes (used by a local sweep for its children).
+        #[arg(long, hide = true)]
+        watch_stdin: bool,
+    },
+    /// Gather the table (sweep.csv, sweep.json) of a sweep directory, e.g. after a Slurm job
+    /// array; lists the points not done and the command to resubmit only those (exit status 2).
+    SweepCollect {
+        /// The sweep directory (with sweep-manifest.json).
+        dir: PathBuf,
     },
     /// Plot stretching curves (D_A, D_T vs force) of runs or sweeps against Mills et al. 2004.
     Plot {
@@ -152,15 +208,26 @@ enum Command {
     },
 }
 
+/// Ctrl-C / SIGTERM deliveries so far: the first asks the run to checkpoint and stop, a second
+/// exits at once. (Counted apart from INTERRUPTED, which a sweep's child also sets when its
+/// parent closes its stdin.)
+static SIGNALS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+
 fn main() {
     let cli = Cli::parse();
-    // First Ctrl-C: ask the run to checkpoint and stop; a second one exits at once.
+    // First Ctrl-C (or SIGTERM, as Slurm sends at a time limit): ask the run to checkpoint and
+    // stop; a second one exits at once.
     let _ = ctrlc::set_handler(|| {
-        if hemodpd_scenario::INTERRUPTED.swap(true, std::sync::atomic::Ordering::SeqCst) {
+        hemodpd_scenario::INTERRUPTED.store(true, std::sync::atomic::Ordering::SeqCst);
+        if SIGNALS.fetch_add(1, std::sync::atomic::Ordering::SeqCst) > 0 {
             std::process::exit(130);
         }
     });
     if let Err(e) = dispatch(cli) {
+        if let Some(x) = e.downcast_ref::<sweep::ExitWith>() {
+            eprintln!("{}", x.message);
+            std::process::exit(x.code);
+        }
         match e.downcast_ref::<hemodpd_scenario::RunError>() {
             Some(hemodpd_scenario::RunError::Interrupted { .. }) => {
                 eprintln!("{e}");
@@ -207,11 +274,55 @@ fn dispatch(cli: Cli) -> Result<()> {
         Command::Sweep {
             scenario,
             vary,
+            zip,
             sets,
             out,
+            jobs,
+            threads_per_job,
+            yes,
+            quiet,
+            emit_slurm,
+            slurm_time,
+            slurm_mem,
+            slurm_partition,
+            slurm_account,
+            slurm_cpus,
+        } => sweep::sweep(sweep::SweepArgs {
+            scenario,
+            vary,
+            sets,
+            zip,
+            jobs,
+            threads_per_job,
+            yes,
+            out,
+            quiet,
+            emit_slurm,
+            slurm: sweep::slurm::SlurmOptions {
+                time: slurm_time,
+                mem: slurm_mem,
+                partition: slurm_partition,
+                account: slurm_account,
+                cpus: slurm_cpus,
+            },
+        }),
+        Command::SweepTask {
+            dir,
+            index,
             threads,
             quiet,
-        } => sweep(&scenario, &vary, &sets, out, threads, quiet),
+            watch_stdin,
+        } => {
+            if watch_stdin {
+                // the parent sweep closes our stdin (or dies) to ask for a checkpoint and a stop
+                std::thread::spawn(|| {
+                    let _ = std::io::copy(&mut std::io::stdin(), &mut std::io::sink());
+                    hemodpd_scenario::INTERRUPTED.store(true, std::sync::atomic::Ordering::SeqCst);
+                });
+            }
+            sweep::task(&dir, index, threads, quiet)
+        }
+        Command::SweepCollect { dir } => sweep::collect(&dir),
         Command::Plot { inputs, output, title } => plot(&inputs, &output, &title),
         Command::Render {
             trajectory,
@@ -328,156 +439,6 @@ fn write_summary(
     Ok(summary)
 }
 
-fn sweep(
-    path: &Path,
-    vary: &[String],
-    sets: &[String],
-    out: Option<PathBuf>,
-    threads: Option<usize>,
-    quiet: bool,
-) -> Result<()> {
-    // axes: (key, values)
-    let mut axes = Vec::new();
-    for v in vary {
-        let (key, values) = v
-            .split_once('=')
-            .with_context(|| format!("--vary {v}: expected KEY=V1,V2,..."))?;
-        let values: Vec<String> = split_values(values);
-        if values.is_empty() {
-            bail!("--vary {v}: no values");
-        }
-        axes.push((key.trim().to_string(), values));
-    }
-    let mut combos: Vec<Vec<(String, String)>> = vec![vec![]];
-    for (key, values) in &axes {
-        combos = combos
-            .iter()
-            .flat_map(|c| {
-                values
-                    .iter()
-                    .map(move |v| [c.clone(), vec![(key.clone(), v.clone())]].concat())
-            })
-            .collect();
-    }
-    // validate every variant before running any
-    for combo in &combos {
-        let all: Vec<String> = sets
-            .iter()
-            .cloned()
-            .chain(combo.iter().map(|(k, v)| format!("{k}={v}")))
-            .collect();
-        hemodpd_scenario::load(path, &all)?;
-    }
-    let stem = path
-        .file_stem()
-        .map(|s| s.to_string_lossy().to_string())
-        .unwrap_or_else(|| "run".into());
-    let out_dir = out.unwrap_or_else(|| PathBuf::from("runs").join(format!("{stem}-sweep")));
-    let mut runs = Vec::new();
-    for (i, combo) in combos.iter().enumerate() {
-        let label = combo
-            .iter()
-            .map(|(k, v)| format!("{k}={v}"))
-            .collect::<Vec<_>>()
-            .join(",");
-        let dir = out_dir.join(label.replace(['/', ' ', '[', ']', '"'], "_"));
-        let all: Vec<String> = sets
-            .iter()
-            .cloned()
-            .chain(combo.iter().map(|(k, v)| format!("{k}={v}")))
-            .collect();
-        if !quiet {
-            eprintln!("[{}/{}] {label}", i + 1, combos.len());
-        }
-        let summary = run_one(path, &all, Some(dir.clone()), threads, quiet)?;
-        let results = &summary["results"];
-        let metrics: serde_json::Map<String, serde_json::Value> = sweep_columns(summary["scenario_kind"].as_str())
-            .iter()
-            .map(|(name, pointer)| (name.to_string(), results.pointer(pointer).cloned().unwrap_or_default()))
-            .collect();
-        let mills = &results["mills2004"];
-        runs.push(json!({
-            "label": label, "overrides": all, "dir": dir, "wall_time_s": summary["wall_time_s"],
-            "rms_axial_um": mills["rms_axial_um"], "rms_transverse_um": mills["rms_transverse_um"],
-            "scenario_kind": summary["scenario_kind"], "metrics": metrics,
-        }));
-    }
-    let sweep = json!({ "scenario_file": path, "axes": axes, "runs": runs });
-    hemodpd_io::summary::write_json_atomic(out_dir.join("sweep.json"), &sweep)?;
-    let columns: Vec<&str> = sweep_columns(runs.first().and_then(|r| r["scenario_kind"].as_str()))
-        .iter()
-        .map(|(name, _)| *name)
-        .collect();
-    print!("{:<40} {:>10}", "run", "wall (s)");
-    for c in &columns {
-        print!(" {c:>14}");
-    }
-    println!();
-    for r in &runs {
-        print!(
-            "{:<40} {:>10}",
-            r["label"].as_str().unwrap_or(""),
-            r["wall_time_s"].as_f64().map_or("-".into(), |v| format!("{v:.3}"))
-        );
-        for c in &columns {
-            let v = r["metrics"][c].as_f64().map_or("-".into(), |v| format!("{v:.4}"));
-            print!(" {v:>14}");
-        }
-        println!();
-    }
-    Ok(())
-}
-
-/// The figures a sweep tabulates for each scenario kind: (column, JSON pointer into `results`).
-fn sweep_columns(kind: Option<&str>) -> &'static [(&'static str, &'static str)] {
-    match kind {
-        Some("stretching") => &[
-            ("RMS D_A (um)", "/mills2004/rms_axial_um"),
-            ("RMS D_T (um)", "/mills2004/rms_transverse_um"),
-        ],
-        Some("dpd-fluid") => &[
-            ("kBT", "/temperature/mean"),
-            ("pressure", "/pressure/mean"),
-            ("particle-steps/s", "/throughput_particle_steps_per_s"),
-        ],
-        Some("poiseuille-tube") => &[
-            ("viscosity", "/viscosity/value"),
-            ("viscosity SE", "/viscosity/standard_error"),
-            ("slip", "/parabola/slip_fraction"),
-            ("max |rho/rho0-1|", "/near_wall/max_density_deviation"),
-        ],
-        Some("couette") => &[
-            ("viscosity", "/viscosity/value"),
-            ("viscosity SE", "/viscosity/standard_error"),
-            ("slip lower", "/line/slip_fraction_lower"),
-            ("slip upper", "/line/slip_fraction_upper"),
-        ],
-        _ => &[],
-    }
-}
-
-/// Splits "a,b,[1, 2],c" at top-level commas.
-fn split_values(s: &str) -> Vec<String> {
-    let (mut out, mut cur, mut depth) = (Vec::new(), String::new(), 0i32);
-    for ch in s.chars() {
-        match ch {
-            '[' => depth += 1,
-            ']' => depth -= 1,
-            ',' if depth == 0 => {
-                out.push(cur.trim().to_string());
-                cur.clear();
-                continue;
-            }
-            _ => {}
-        }
-        cur.push(ch);
-    }
-    if !cur.trim().is_empty() {
-        out.push(cur.trim().to_string());
-    }
-    out
-}
-
 fn read_json(path: &Path) -> Result<serde_json::Value> {
     let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
     serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))
@@ -490,14 +451,24 @@ fn plot(inputs: &[PathBuf], output: &Path, title: &str) -> Result<()> {
         let label_dirs: Vec<(String, PathBuf)> =
             if input.is_file() && input.file_name().is_some_and(|n| n == "sweep.json") {
                 let sw = read_json(input)?;
+                // `dir` is the sweep directory as given to `sweep` joined with the point's
+                // directory; `point_dir` is the point's directory inside the sweep directory
+                let base = input.parent().unwrap_or(Path::new("."));
                 sw["runs"]
                     .as_array()
                     .into_iter()
                     .flatten()
+                    .filter(|r| r["status"].as_str().is_none_or(|s| s == "done"))
                     .map(|r| {
+                        let dir = PathBuf::from(r["dir"].as_str().unwrap_or(""));
+                        let in_sweep = base.join(r["point_dir"].as_str().unwrap_or(""));
                         (
                             r["label"].as_str().unwrap_or("").to_string(),
-                            PathBuf::from(r["dir"].as_str().unwrap_or("")),
+                            if r["point_dir"].is_string() && in_sweep.exists() {
+                                in_sweep
+                            } else {
+                                dir
+                            },
                         )
                     })
                     .collect()
