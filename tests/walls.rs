@@ -104,6 +104,16 @@ struct Tube {
     kbt: [f64; 4],
 }
 
+/// Steps of flow development before sampling: the flow (on during the 5000 steps of
+/// adaptation, when adaptive) must reach steady state, within e⁻⁵ ≈ 0.7 % of it after five
+/// viscous times τ_v = nR²/(η j0²) (15 τ at R = 5, 40 τ at R = 8); at least 3000.
+fn flow_steps(radius: f64, adaptive: bool) -> u64 {
+    let tau_v = 3.0 * radius * radius / (ETA_PERIODIC * 2.405f64.powi(2));
+    let needed = (5.0 * tau_v / 0.01) as u64;
+    let adapting = if adaptive { 5000 } else { 0 };
+    needed.saturating_sub(adapting).max(if adaptive { 3000 } else { 8000 })
+}
+
 /// Runs the shipped scenario `file` (in `scenarios/`) with the `--set` overrides `sets` in a
 /// temporary directory and returns its results.
 fn run_scenario(file: &str, sets: &[String]) -> serde_json::Value {
@@ -126,7 +136,7 @@ fn poiseuille(radius: f64, length: f64, g: f64, adaptive: bool, steps: u64, seed
         format!("seed={seed}"),
         format!("walls.adaptive={adaptive}"),
         format!("tube.reference_viscosity={ETA_PERIODIC}"),
-        format!("run.flow_steps={}", if adaptive { 3000 } else { 8000 }),
+        format!("run.flow_steps={}", flow_steps(radius, adaptive)),
         format!("run.steps={steps}"),
         "run.measure_overhead=false".into(),
     ];

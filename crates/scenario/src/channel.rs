@@ -1180,6 +1180,17 @@ fn tube_results(
     // body force in steady flow)
     let (tau, tau_se) = stress_mean_se(&m.stress);
     let tau_expected = n_mean * g * radius / 2.0;
+    // the wall carries the whole body force only in steady flow: a stress short of it says
+    // the flow was still developing (the slowest mode decays over τ_v = nR²/(η j0²))
+    let tau_v =
+        plan.fluid.density * radius * radius / (reference_viscosity.unwrap_or(1.0) * J0_FIRST_ZERO * J0_FIRST_ZERO);
+    let steady_note = ((tau / tau_expected - 1.0).abs() > 0.01 && (tau - tau_expected).abs() > 3.0 * tau_se).then(|| {
+        format!(
+            "the wall stress is {:+.1} % off the body force it must carry: the flow was not steady while sampled; give it 5 viscous times τ_v ≈ {:.0} steps (adaptation + run.flow_steps)",
+            100.0 * (tau / tau_expected - 1.0),
+            5.0 * tau_v / plan.run.timestep
+        )
+    });
     let um = match plan.length_scale_um_per_rc {
         Some(l) => json!({ "diameter_um": 2.0 * radius * l, "length_um": length * l }),
         None => serde_json::Value::Null,
@@ -1204,7 +1215,8 @@ fn tube_results(
         "viscosity": viscosity,
         "viscosity_profile": vp.json(),
         "wall_shear_stress": { "measured": tau, "standard_error": tau_se, "expected": tau_expected,
-                               "relative_deviation": tau / tau_expected - 1.0,
+                               "relative_deviation": tau / tau_expected - 1.0, "steady_flow_note": steady_note,
+                               "viscous_time": tau_v,
                                "definition": "axial force of the fluid on the wall (pair forces on the wall particles + reflection impulses) per wall area 2πRL, against n̄gR/2 (the wall carries the body force on all fluid particles)" },
         "temperature": { "mean": (t_mean[0] + t_mean[1] + t_mean[2]) / 3.0, "radial": t_mean[0], "azimuthal": t_mean[1], "axial": t_mean[2],
                          "definition": "m⟨(v − ū(r))²⟩ per component over the sampled steps, ū(r) the measured mean velocity of the particle's radial bin" },
