@@ -39,6 +39,7 @@ pub mod domain;
 pub mod error;
 pub mod init;
 pub mod kernel;
+pub mod mesh_bounce;
 pub mod observe;
 pub mod pairs;
 pub mod params;
