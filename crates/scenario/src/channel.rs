@@ -24,7 +24,7 @@ use crate::fluid::{out_err, particles_from_checkpoint, particles_into_checkpoint
 use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::walls::{self, WallConfig, WallForceProfile, WallSetup, WallShape, Walls, WallsState};
-use hemodpd_engine::{init, observe, ForceField, PairParams, PeriodicBox, SimConfig, SimState, Simulation};
+use hemodpd_engine::{init, ForceField, PairParams, PeriodicBox, SimConfig, SimState, Simulation};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{RunMetadata, TrajectoryWriter};
 use serde::{Deserialize, Serialize};
@@ -182,9 +182,11 @@ impl ProfileSums {
 pub struct Measurement {
     /// Velocity and density profile across the channel.
     pub profile: ProfileSums,
-    /// The wall shear stress at every sampled step: Couette, the mean of the two plates'
-    /// stresses on the fluid; tube, the axial force of the fluid on the wall per wall area.
-    pub stress: Vec<f64>,
+    /// The wall shear stress summed over the sampled steps of each time block, and the steps
+    /// summed (`[sum, steps]` per block; bounded size, whatever the run length): Couette, the
+    /// mean of the two plates' stresses on the fluid; tube, the axial force of the fluid on the
+    /// wall per wall area.
+    pub stress: Vec<[f64; 2]>,
     /// The reflection impulse along the flow of each surface at the last step.
     pub impulse_prev: [f64; 2],
     /// Wall-clock seconds of the stepping so far (over all sessions of a resumed run).
@@ -510,7 +512,8 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(Simulation<Walls>, Measureme
         .map_err(engine_err)?;
     let nb = plan.run.profile_bins;
     let bins_ok = |v: &Vec<Vec<f64>>| v.len() == BLOCKS && v.iter().all(|c| c.len() == nb);
-    let squares_ok = m.profile.square.len() == BLOCKS && m.profile.square.iter().all(|c| c.len() == nb);
+    let squares_ok =
+        m.profile.square.len() == BLOCKS && m.profile.square.iter().all(|c| c.len() == nb) && m.stress.len() == BLOCKS;
     if !bins_ok(&m.profile.count) || !bins_ok(&m.profile.velocity) || m.profile.samples.len() != BLOCKS {
         return Err(RunError::Output(
             "checkpoint: the sampled profile does not match run.profile_bins".into(),
@@ -605,11 +608,13 @@ fn sample(plan: &Plan, sim: &Simulation<Walls>, m: &mut Measurement, i: u64) {
         fw[k] += (imp[k][dir] - m.impulse_prev[k]) / r.timestep;
         m.impulse_prev[k] = imp[k][dir];
     }
-    m.stress.push(match plan.channel {
+    let stress = match plan.channel {
         // the stress on the fluid, averaged over the plates (the lower one drags it along −x)
         Channel::Couette { area, .. } => (fw[0] - fw[1]) / (2.0 * area),
         Channel::Tube { radius, length, .. } => fw[0] / (2.0 * std::f64::consts::PI * radius * length),
-    });
+    };
+    m.stress[block][0] += stress;
+    m.stress[block][1] += 1.0;
 }
 
 /// The flow controller's part of a step: accumulates the fluid's mean axial velocity and, every
@@ -686,7 +691,7 @@ fn drive(
             };
             let m = Measurement {
                 profile: ProfileSums::new(plan.run.profile_bins),
-                stress: Vec::new(),
+                stress: vec![[0.0; 2]; BLOCKS],
                 impulse_prev: [0.0; 2],
                 stepping_seconds: 0.0,
                 flow_control,
@@ -1041,28 +1046,30 @@ fn jackknife_se(m: &Measurement, f: impl Fn(&dyn Fn(usize) -> bool) -> f64) -> f
 }
 
 /// Mean of the per-step wall stress and its standard error over the [`BLOCKS`] time blocks of
-/// the sampling phase. Not `observe::block_error`: the random force on the wall particles makes
-/// the per-step stress a large white noise that the fluid gives back within a few steps (the
-/// series is anticorrelated), so short blocks overstate the error several times over; blocks of
-/// a tenth of the run do not.
-fn stress_mean_se(series: &[f64]) -> (f64, f64) {
-    observe::block_average(series, BLOCKS)
-        .or_else(|_| observe::block_average(series, 2))
-        .unwrap_or((f64::NAN, f64::NAN))
+/// the sampling phase. Not `observe::block_error` on the step series: the random force on the
+/// wall particles makes the per-step stress a large white noise that the fluid gives back
+/// within a few steps (the series is anticorrelated), so short blocks overstate the error
+/// several times over; blocks of a tenth of the run do not.
+fn stress_mean_se(blocks: &[[f64; 2]]) -> (f64, f64) {
+    let means: Vec<f64> = blocks.iter().filter(|b| b[1] > 0.0).map(|b| b[0] / b[1]).collect();
+    let mean = block_mean(blocks, &|_| true);
+    if means.len() < 2 {
+        return (mean, f64::NAN);
+    }
+    let n = means.len() as f64;
+    let m = means.iter().sum::<f64>() / n;
+    let var = means.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (n - 1.0);
+    (mean, (var / n).sqrt())
 }
 
-/// Mean of the per-step stress series over the blocks for which `take(block)` holds (the
-/// series is split into the same [`BLOCKS`] as the profile).
-fn block_mean(series: &[f64], take: &dyn Fn(usize) -> bool) -> f64 {
-    let n = series.len();
-    let (mut sum, mut count) = (0.0, 0usize);
-    for (i, x) in series.iter().enumerate() {
-        if take(i * BLOCKS / n.max(1)) {
-            sum += x;
-            count += 1;
-        }
-    }
-    sum / count.max(1) as f64
+/// Mean wall stress over the blocks for which `take(block)` holds.
+fn block_mean(blocks: &[[f64; 2]], take: &dyn Fn(usize) -> bool) -> f64 {
+    let (sum, steps) = blocks
+        .iter()
+        .enumerate()
+        .filter(|(b, _)| take(*b))
+        .fold((0.0, 0.0), |(s, c), (_, x)| (s + x[0], c + x[1]));
+    sum / steps.max(1.0)
 }
 
 /// The tube's η(r): σ_rz(r) = −g N(<r)/(2πrL) is the exact axial momentum balance of the fluid
@@ -1316,7 +1323,7 @@ fn couette_results(
         "profile": { "z": z, "v_x": v, "line": fit, "density": rho, "samples": samples,
                      "kbt": { "normal": temp.iter().map(|t| t[0]).collect::<Vec<_>>(), "spanwise": temp.iter().map(|t| t[1]).collect::<Vec<_>>(), "flow": temp.iter().map(|t| t[2]).collect::<Vec<_>>() } },
         "line": { "intercept": c0, "shear_rate": c1, "no_slip_shear_rate": 2.0 * u / gap, "slip_fraction_lower": slip_lo, "slip_fraction_upper": slip_hi },
-        "shear_stress": { "mean": sigma, "standard_error": sigma_se, "samples": m.stress.len() },
+        "shear_stress": { "mean": sigma, "standard_error": sigma_se, "samples": m.stress.iter().map(|b| b[1]).sum::<f64>() },
         "viscosity": vp.summary("the wall shear stress (pair forces on the wall particles + reflection impulses); the value is σ over the slope of a count-weighted line through the bins the plateau spans"),
         "viscosity_whole_line": { "value": sigma / c1, "standard_error": sigma_se / c1.abs() },
         "viscosity_profile": vp.json(),
@@ -1489,7 +1496,7 @@ mod tests {
         let w = radius / nb as f64;
         let mut m = Measurement {
             profile: ProfileSums::new(nb),
-            stress: Vec::new(),
+            stress: vec![[0.0; 2]; BLOCKS],
             impulse_prev: [0.0; 2],
             stepping_seconds: 0.0,
             flow_control: None,
