@@ -897,7 +897,8 @@ fn fit_parabola(r: &[f64], v: &[f64], count: &[f64], r_max: f64) -> (f64, f64) {
 /// and stops on a path where the mean of its next two edges departs from the plateau's running
 /// inverse-variance mean by more than [`DEPARTURE_Z`] jackknife standard errors. With too
 /// little signal (a weak drive, a short run) no departure is significant and the plateau takes
-/// in the wall layer: the summary reports its extent. Standard errors are jackknife estimates over the time blocks.
+/// in the wall layer: the summary reports its extent. Standard errors are jackknife estimates
+/// over the time blocks.
 struct ViscosityProfile {
     /// Edge positions x_e (e = 1 … bins − 1).
     r: Vec<f64>,
@@ -922,15 +923,8 @@ fn viscosity_profile(
     let eta = eta_of(&|_| true);
     let used: Vec<usize> = (0..BLOCKS).filter(|&b| m.profile.samples[b] > 0).collect();
     let jack: Vec<Vec<f64>> = used.iter().map(|&out| eta_of(&|b| b != out)).collect();
-    let nj = jack.len() as f64;
-    let jack_se = |values: &dyn Fn(&Vec<f64>) -> f64| -> f64 {
-        if jack.len() < 2 {
-            return f64::NAN;
-        }
-        let x: Vec<f64> = jack.iter().map(values).collect();
-        let mean = x.iter().sum::<f64>() / nj;
-        ((nj - 1.0) / nj * x.iter().map(|v| (v - mean).powi(2)).sum::<f64>()).sqrt()
-    };
+    let jack_se =
+        |values: &dyn Fn(&Vec<f64>) -> f64| -> f64 { jackknife_spread(&jack.iter().map(values).collect::<Vec<_>>()) };
     let se: Vec<f64> = (0..eta.len()).map(|k| jack_se(&|j: &Vec<f64>| j[k])).collect();
     // η = σ/(dv/dx) is a ratio; where dv/dx is poorly known (near the axis of a tube, dv/dx →
     // 0) it is biased by about the squared relative error of dv/dx and its jackknife error is
@@ -1036,10 +1030,15 @@ impl ViscosityProfile {
 /// which `take(block)` holds.
 fn jackknife_se(m: &Measurement, f: impl Fn(&dyn Fn(usize) -> bool) -> f64) -> f64 {
     let used: Vec<usize> = (0..BLOCKS).filter(|&b| m.profile.samples[b] > 0).collect();
-    if used.len() < 2 {
+    jackknife_spread(&used.iter().map(|&out| f(&|b| b != out)).collect::<Vec<_>>())
+}
+
+/// The jackknife standard error from the leave-one-out values `x`: √((n − 1)/n · Σ(x − x̄)²);
+/// NaN with fewer than two.
+fn jackknife_spread(x: &[f64]) -> f64 {
+    if x.len() < 2 {
         return f64::NAN;
     }
-    let x: Vec<f64> = used.iter().map(|&out| f(&|b| b != out)).collect();
     let n = x.len() as f64;
     let mean = x.iter().sum::<f64>() / n;
     ((n - 1.0) / n * x.iter().map(|v| (v - mean).powi(2)).sum::<f64>()).sqrt()
