@@ -43,6 +43,28 @@ pub trait Extension {
 
 impl Extension for () {}
 
+/// Two extensions composed: each hook runs the first, then the second (walls, then a membrane;
+/// nest pairs for more: `(Walls, (Cell, Drive))`). No combinator per pair of extension kinds.
+impl<A: Extension, B: Extension> Extension for (A, B) {
+    #[inline]
+    fn after_position_update(&mut self, state: &mut StateMut<'_>) -> Result<(), EngineError> {
+        self.0.after_position_update(state)?;
+        self.1.after_position_update(state)
+    }
+
+    #[inline]
+    fn add_forces(&mut self, state: &mut StateMut<'_>) -> Result<(), EngineError> {
+        self.0.add_forces(state)?;
+        self.1.add_forces(state)
+    }
+
+    #[inline]
+    fn end_of_step(&mut self, state: &mut StateMut<'_>) -> Result<(), EngineError> {
+        self.0.end_of_step(state)?;
+        self.1.end_of_step(state)
+    }
+}
+
 /// A DPD simulation, generic over its [`Extension`] (default `()`: a plain fluid).
 #[derive(Debug)]
 pub struct Simulation<E: Extension = ()> {

@@ -1,0 +1,525 @@
+//! The membrane in the flow: one cell whose vertices are particles of the DPD engine
+//! (docs/engine.md, "The cell in the fluid").
+//!
+//! [`Cell`] is an engine [`Extension`]. The fluid and the walls act on the vertices through the
+//! ordinary pair forces of their type pairs (the scenario sets a = 0 and the no-slip friction);
+//! the cell adds, per step:
+//!
+//! 1. after the drift, [`Extension::after_position_update`]: the vertices' **unwrapped**
+//!    positions are advanced by the minimum image of their wrapped displacement (a vertex moves
+//!    far less than half a box per step), so links, area, volume and bounce-back never see the
+//!    periodic boundary; then fluid particles that crossed a triangle during the step are
+//!    **bounced back** on the moving triangle ([`hemodpd_engine::mesh_bounce`]), and the
+//!    impulses go to the triangle's vertices (linear and angular momentum conserved);
+//! 2. [`Extension::add_forces`]: the membrane forces of Eq. 1 on the unwrapped positions, and a
+//!    short-range repulsion from the wall so that the cell never enters it;
+//! 3. [`Extension::end_of_step`]: every `check_every` steps, an inside test (generalised
+//!    winding number) of every inner and outer fluid particle near the cell; a particle on the
+//!    wrong side is a missed crossing, counted in [`CellStats::misplaced`].
+//!
+//! Candidate pairs for bounce-back: a particle can only have crossed a triangle if its segment
+//! of the step meets the bounding box of the cell over the step; those few particles (a parallel
+//! filter with one box test each) are tested against the triangles of a uniform grid over that
+//! box whose cells their segment overlaps. The cost grows with the particles near the membrane,
+//! not with particles × triangles. The results are applied in particle order, so the trajectory
+//! does not depend on the number of threads.
+//!
+//! Lengths, velocities and forces are in the engine's model units.
+
+use glam::DVec3;
+use hemodpd_engine::mesh_bounce::{self, MovingTriangle};
+use hemodpd_engine::{EngineError, Extension, StateMut, WallShape};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+use crate::forces::ForceWorkspace;
+use crate::mesh::winding_number;
+use crate::MembraneModel;
+
+/// Meshes with at least this many vertices use the parallel force evaluation.
+const PARALLEL_FORCES_FROM: usize = 4000;
+
+/// Short-range repulsion of the vertices from a wall: a vertex at distance d < `range` from the
+/// wall surface (inside the fluid) feels `strength·(1 − d/range)` along the inward normal.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WallRepulsion {
+    /// The wall surface (the same signed distance as the walls).
+    pub shape: WallShape,
+    /// Range (length).
+    pub range: f64,
+    /// Force at contact (force).
+    pub strength: f64,
+}
+
+/// Settings of a [`Cell`].
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CellConfig {
+    /// Storage index of vertex 0; the N vertices occupy `first..first + N`.
+    pub first: usize,
+    /// Type of the fluid outside the cell.
+    pub outer_type: u16,
+    /// Type of the fluid inside the cell.
+    pub inner_type: u16,
+    /// Steps between inside/outside checks (0: never).
+    pub check_every: u64,
+    /// Repulsion from the wall, if there is one.
+    pub wall: Option<WallRepulsion>,
+}
+
+/// Counters of a [`Cell`] (part of its checkpointed state).
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct CellStats {
+    /// Fluid particles bounced back on a triangle.
+    pub bounces: u64,
+    /// Inside/outside checks done.
+    pub checks: u64,
+    /// Fluid particles found on the wrong side, summed over the checks (target: 0).
+    pub misplaced: u64,
+    /// Particles on the wrong side at the last check.
+    pub misplaced_last: u64,
+    /// Fluid particles tested in the last check.
+    pub checked_last: u64,
+}
+
+/// The checkpointed state of a [`Cell`]: the unwrapped vertex positions (which carry the
+/// periodic image of every vertex) and the counters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CellState {
+    /// Unwrapped vertex positions, `[x, y, z]` (length).
+    pub unwrapped: Vec<[f64; 3]>,
+    pub stats: CellStats,
+}
+
+/// Wall-clock seconds spent in each part of the cell's work (not checkpointed).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct CellTimers {
+    pub bounce_s: f64,
+    pub membrane_forces_s: f64,
+    pub checks_s: f64,
+}
+
+/// One bounce found in the parallel pass, applied in particle order afterwards.
+#[derive(Clone, Copy, Debug)]
+struct BounceEvent {
+    particle: u32,
+    triangle: u32,
+    position: DVec3,
+    velocity: DVec3,
+    vertex_impulse: [DVec3; 3],
+}
+
+/// One red blood cell in the engine (see the module docs).
+#[derive(Debug)]
+pub struct Cell {
+    model: MembraneModel,
+    config: CellConfig,
+    /// Unwrapped vertex positions now, and at the start of the step being taken.
+    x: Vec<DVec3>,
+    x_prev: Vec<DVec3>,
+    forces: Vec<DVec3>,
+    workspace: Option<ForceWorkspace>,
+    stats: CellStats,
+    timers: CellTimers,
+    /// Energy terms of the last force evaluation.
+    energy: crate::EnergyTerms,
+    // reusable buffers of the bounce pass
+    candidates: Vec<u32>,
+    grid_start: Vec<u32>,
+    grid_items: Vec<u32>,
+}
+
+/// Bounding box of a set of points.
+fn bounds<'a>(points: impl Iterator<Item = &'a DVec3>) -> (DVec3, DVec3) {
+    points.fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| {
+        (lo.min(*p), hi.max(*p))
+    })
+}
+
+/// Whether the segment from `a` to `b` meets the box [lo, hi] (slab test).
+#[inline]
+fn segment_meets_box(a: DVec3, b: DVec3, lo: DVec3, hi: DVec3) -> bool {
+    let (mut t0, mut t1) = (0.0f64, 1.0f64);
+    let d = b - a;
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if a[k] < lo[k] || a[k] > hi[k] {
+                return false;
+            }
+        } else {
+            let (u, v) = ((lo[k] - a[k]) / d[k], (hi[k] - a[k]) / d[k]);
+            let (u, v) = if u <= v { (u, v) } else { (v, u) };
+            t0 = t0.max(u);
+            t1 = t1.min(v);
+            if t0 > t1 {
+                return false;
+            }
+        }
+    }
+    true
+}
+
+/// A uniform grid over a box, for the triangle lookup of the bounce pass.
+#[derive(Clone, Copy, Debug)]
+struct Grid {
+    lo: DVec3,
+    h: f64,
+    n: [usize; 3],
+}
+
+impl Grid {
+    fn new(lo: DVec3, hi: DVec3, h: f64) -> Self {
+        let span = hi - lo;
+        let n = [0, 1, 2].map(|k| ((span[k] / h).floor() as usize + 1).clamp(1, 256));
+        Grid { lo, h, n }
+    }
+    fn len(&self) -> usize {
+        self.n[0] * self.n[1] * self.n[2]
+    }
+    /// Cell index range along each axis covering [a, b].
+    fn range(&self, a: DVec3, b: DVec3) -> [(usize, usize); 3] {
+        [0, 1, 2].map(|k| {
+            let f = |x: f64| (((x - self.lo[k]) / self.h).floor().max(0.0) as usize).min(self.n[k] - 1);
+            (f(a[k]), f(b[k]))
+        })
+    }
+    fn index(&self, i: usize, j: usize, k: usize) -> usize {
+        (k * self.n[1] + j) * self.n[0] + i
+    }
+}
+
+impl Cell {
+    /// A cell with the given model (in model units) whose vertices are at the unwrapped
+    /// positions `unwrapped` (the particles at `config.first..` must hold the same positions,
+    /// wrapped into the box).
+    pub fn new(model: MembraneModel, config: CellConfig, unwrapped: Vec<DVec3>) -> Result<Self, EngineError> {
+        if unwrapped.len() != model.n_vertices() {
+            return Err(EngineError::invalid(
+                "cell vertices",
+                format!("{} positions for a model of {} vertices", unwrapped.len(), model.n_vertices()),
+            ));
+        }
+        if let Some(w) = &config.wall {
+            if !(w.range > 0.0 && w.range.is_finite() && w.strength >= 0.0 && w.strength.is_finite()) {
+                return Err(EngineError::invalid(
+                    "cell wall repulsion",
+                    format!("range {} and strength {} (need range > 0, strength ≥ 0)", w.range, w.strength),
+                ));
+            }
+        }
+        let n = unwrapped.len();
+        let workspace = (n >= PARALLEL_FORCES_FROM).then(|| model.workspace());
+        Ok(Cell {
+            model,
+            config,
+            x_prev: unwrapped.clone(),
+            x: unwrapped,
+            forces: vec![DVec3::ZERO; n],
+            workspace,
+            stats: CellStats::default(),
+            timers: CellTimers::default(),
+            energy: Default::default(),
+            candidates: Vec::new(),
+            grid_start: Vec::new(),
+            grid_items: Vec::new(),
+        })
+    }
+
+    /// Restores the state saved by [`Cell::state`].
+    pub fn with_state(mut self, state: CellState) -> Result<Self, EngineError> {
+        if state.unwrapped.len() != self.x.len() {
+            return Err(EngineError::invalid(
+                "saved cell state",
+                format!("{} vertices for a model of {}", state.unwrapped.len(), self.x.len()),
+            ));
+        }
+        self.x = state.unwrapped.iter().map(|v| DVec3::from_array(*v)).collect();
+        self.x_prev = self.x.clone();
+        self.stats = state.stats;
+        Ok(self)
+    }
+
+    /// The state to checkpoint.
+    pub fn state(&self) -> CellState {
+        CellState {
+            unwrapped: self.x.iter().map(|v| v.to_array()).collect(),
+            stats: self.stats.clone(),
+        }
+    }
+
+    /// The membrane model.
+    pub fn model(&self) -> &MembraneModel {
+        &self.model
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &CellConfig {
+        &self.config
+    }
+
+    /// Unwrapped vertex positions (length).
+    pub fn vertices(&self) -> &[DVec3] {
+        &self.x
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> &CellStats {
+        &self.stats
+    }
+
+    /// Time spent per part.
+    pub fn timers(&self) -> CellTimers {
+        self.timers
+    }
+
+    /// Energy terms of the last force evaluation.
+    pub fn energy(&self) -> crate::EnergyTerms {
+        self.energy
+    }
+
+    /// Storage indices of the vertices.
+    pub fn vertex_range(&self) -> std::ops::Range<usize> {
+        self.config.first..self.config.first + self.x.len()
+    }
+
+    /// Tests the inner and outer fluid particles near the cell (positions wrapped into `domain`
+    /// in `pos`) and returns (tested, on the wrong side).
+    pub fn count_misplaced(&self, pos: &[DVec3], ptype: &[u16], domain: &hemodpd_engine::PeriodicBox) -> (u64, u64) {
+        let (lo, hi) = bounds(self.x.iter());
+        let c = 0.5 * (lo + hi);
+        let (inner, outer) = (self.config.inner_type, self.config.outer_type);
+        let tris = self.model.triangles();
+        let x = &self.x;
+        let vr = self.vertex_range();
+        let (tested, wrong) = pos
+            .par_iter()
+            .zip(ptype.par_iter())
+            .enumerate()
+            .with_min_len(1024)
+            .filter_map(|(i, (p, &t))| {
+                if (t != inner && t != outer) || vr.contains(&i) {
+                    return None;
+                }
+                let q = c + domain.min_image(*p, c);
+                let inside_box = q.cmpge(lo).all() && q.cmple(hi).all();
+                let is_inside = inside_box && winding_number(q, x, tris) > 0.5;
+                if !inside_box && t == outer {
+                    return None; // outside the box: trivially on the right side if outer
+                }
+                Some((1u64, ((t == inner) != is_inside) as u64))
+            })
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        (tested, wrong)
+    }
+
+    /// Advances the unwrapped positions to the vertices' new wrapped positions.
+    fn unwrap(&mut self, s: &StateMut<'_>) {
+        std::mem::swap(&mut self.x, &mut self.x_prev);
+        let first = self.config.first;
+        for (k, (x, xp)) in self.x.iter_mut().zip(self.x_prev.iter()).enumerate() {
+            *x = *xp + s.domain.min_image(s.pos[first + k], *xp);
+        }
+    }
+
+    /// The bounce pass (see the module docs). Returns the number of bounces.
+    fn bounce(&mut self, s: &mut StateMut<'_>) -> Result<u64, EngineError> {
+        let dt = s.dt;
+        let (lo, hi) = bounds(self.x.iter().chain(self.x_prev.iter()));
+        let centre = 0.5 * (lo + hi);
+        let (inner, outer) = (self.config.inner_type, self.config.outer_type);
+        let domain = *s.domain;
+        let vr = self.vertex_range();
+        // 1. particles whose segment of the step meets the cell's box
+        self.candidates.clear();
+        {
+            let (pos, vel, ptype) = (&*s.pos, &*s.vel, s.ptype);
+            self.candidates.par_extend((0..pos.len() as u32).into_par_iter().with_min_len(4096).filter(|&i| {
+                let i = i as usize;
+                let t = ptype[i];
+                if (t != inner && t != outer) || vr.contains(&i) {
+                    return false;
+                }
+                let p1 = centre + domain.min_image(pos[i], centre);
+                segment_meets_box(p1 - vel[i] * dt, p1, lo, hi)
+            }));
+        }
+        if self.candidates.is_empty() {
+            return Ok(0);
+        }
+        // 2. triangles binned by their swept boxes
+        let tris = self.model.triangles();
+        let grid = Grid::new(lo, hi, 1.0_f64.max((hi - lo).max_element() / 64.0));
+        self.grid_start.clear();
+        self.grid_start.resize(grid.len() + 1, 0);
+        let (x0, x1) = (&self.x_prev, &self.x);
+        let swept = |t: &[u32; 3]| {
+            let p = [0, 1, 2].map(|k| x0[t[k] as usize]);
+            let q = [0, 1, 2].map(|k| x1[t[k] as usize]);
+            bounds(p.iter().chain(q.iter()))
+        };
+        for t in tris {
+            let (a, b) = swept(t);
+            let r = grid.range(a, b);
+            for k in r[2].0..=r[2].1 {
+                for j in r[1].0..=r[1].1 {
+                    for i in r[0].0..=r[0].1 {
+                        self.grid_start[grid.index(i, j, k) + 1] += 1;
+                    }
+                }
+            }
+        }
+        for c in 0..grid.len() {
+            self.grid_start[c + 1] += self.grid_start[c];
+        }
+        self.grid_items.clear();
+        self.grid_items.resize(self.grid_start[grid.len()] as usize, 0);
+        let mut fill: Vec<u32> = self.grid_start[..grid.len()].to_vec();
+        for (ti, t) in tris.iter().enumerate() {
+            let (a, b) = swept(t);
+            let r = grid.range(a, b);
+            for k in r[2].0..=r[2].1 {
+                for j in r[1].0..=r[1].1 {
+                    for i in r[0].0..=r[0].1 {
+                        let c = grid.index(i, j, k);
+                        self.grid_items[fill[c] as usize] = ti as u32;
+                        fill[c] += 1;
+                    }
+                }
+            }
+        }
+        // 3. the earliest crossing of each candidate, in parallel; applied in particle order
+        let (start, items) = (&self.grid_start, &self.grid_items);
+        let (pos, vel, ptype) = (&*s.pos, &*s.vel, s.ptype);
+        let mass: Vec<f64> = s.field.types().iter().map(|t| t.mass).collect();
+        let events: Vec<BounceEvent> = self
+            .candidates
+            .par_iter()
+            .with_min_len(64)
+            .filter_map(|&i| {
+                let iu = i as usize;
+                let p1 = centre + domain.min_image(pos[iu], centre);
+                let v = vel[iu];
+                let p0 = p1 - v * dt;
+                let r = grid.range(p0.min(p1), p0.max(p1));
+                let mut best: Option<(f64, u32)> = None;
+                for k in r[2].0..=r[2].1 {
+                    for j in r[1].0..=r[1].1 {
+                        for ii in r[0].0..=r[0].1 {
+                            let c = grid.index(ii, j, k);
+                            for &ti in &items[start[c] as usize..start[c + 1] as usize] {
+                                if best.is_some_and(|b| b.1 == ti) {
+                                    continue;
+                                }
+                                let t = &tris[ti as usize];
+                                let mt = MovingTriangle {
+                                    a0: x0[t[0] as usize],
+                                    b0: x0[t[1] as usize],
+                                    c0: x0[t[2] as usize],
+                                    a1: x1[t[0] as usize],
+                                    b1: x1[t[1] as usize],
+                                    c1: x1[t[2] as usize],
+                                };
+                                if let Some(cr) = mesh_bounce::crossing(p0, p1, &mt) {
+                                    if best.is_none_or(|b| cr.t < b.0) {
+                                        best = Some((cr.t, ti));
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+                let (_, ti) = best?;
+                let t = &tris[ti as usize];
+                let mt = MovingTriangle {
+                    a0: x0[t[0] as usize],
+                    b0: x0[t[1] as usize],
+                    c0: x0[t[2] as usize],
+                    a1: x1[t[0] as usize],
+                    b1: x1[t[1] as usize],
+                    c1: x1[t[2] as usize],
+                };
+                let b = mesh_bounce::bounce(p0, v, mass[ptype[iu] as usize], dt, &mt)?;
+                Some(BounceEvent {
+                    particle: i,
+                    triangle: ti,
+                    position: b.position,
+                    velocity: b.velocity,
+                    vertex_impulse: b.vertex_impulse,
+                })
+            })
+            .collect();
+        let first = self.config.first;
+        for e in &events {
+            let i = e.particle as usize;
+            s.pos[i] = domain.wrap(e.position);
+            s.vel[i] = e.velocity;
+            let t = tris[e.triangle as usize];
+            for k in 0..3 {
+                let vi = first + t[k] as usize;
+                let m = mass[s.ptype[vi] as usize];
+                s.vel[vi] += e.vertex_impulse[k] / m;
+            }
+        }
+        Ok(events.len() as u64)
+    }
+}
+
+impl Extension for Cell {
+    fn after_position_update(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        let t0 = Instant::now();
+        self.unwrap(s);
+        let n = self.bounce(s)?;
+        self.stats.bounces += n;
+        self.timers.bounce_s += t0.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    fn add_forces(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        let t0 = Instant::now();
+        self.forces.iter_mut().for_each(|f| *f = DVec3::ZERO);
+        let result = match self.workspace.as_mut() {
+            Some(ws) => self.model.add_forces_parallel(&self.x, &mut self.forces, ws),
+            None => self.model.add_forces(&self.x, &mut self.forces),
+        };
+        self.energy = result.map_err(|e| EngineError::Extension {
+            step: s.step,
+            message: format!(
+                "membrane: {e} (membrane vertices, storage indices {}..{}); likely cause: a time step too large for the membrane's stiffness or a flow far beyond the scenario's stated bounds",
+                self.config.first,
+                self.config.first + self.x.len()
+            ),
+        })?;
+        let first = self.config.first;
+        for (k, f) in self.forces.iter().enumerate() {
+            s.force[first + k] += *f;
+        }
+        if let Some(w) = self.config.wall {
+            for k in 0..self.x.len() {
+                let p = s.pos[first + k];
+                let d = -w.shape.signed_distance(p);
+                if d < w.range {
+                    s.force[first + k] -= w.shape.normal(p) * (w.strength * (1.0 - d.max(0.0) / w.range));
+                }
+            }
+        }
+        self.timers.membrane_forces_s += t0.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    fn end_of_step(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        let every = self.config.check_every;
+        if every > 0 && s.step % every == 0 {
+            let t0 = Instant::now();
+            let (tested, wrong) = self.count_misplaced(s.pos, s.ptype, s.domain);
+            self.stats.checks += 1;
+            self.stats.misplaced += wrong;
+            self.stats.misplaced_last = wrong;
+            self.stats.checked_last = tested;
+            self.timers.checks_s += t0.elapsed().as_secs_f64();
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests;

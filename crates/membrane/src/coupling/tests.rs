@@ -1,0 +1,157 @@
+//! Tests of the cell in the engine: unwrapped positions across the periodic boundary, fluid
+//! kept on its side by bounce-back, momentum conservation.
+
+use super::*;
+use crate::meshgen::initial_mesh;
+use crate::params::ModelParams;
+use crate::shape::EvansFung;
+use crate::{forces::MembraneConstants, Mesh};
+use hemodpd_engine::{init, ForceField, PairParams, Particles, PeriodicBox, SimConfig, Simulation, TypeSpec};
+
+/// Thermal energy at 300 K, J: the energy unit of these tests (so kBT ≈ 1 in the membrane).
+const KBT_300: f64 = 1.380649e-23 * 300.0;
+
+const OUTER: u16 = 0;
+const INNER: u16 = 1;
+const MEMBRANE: u16 = 2;
+
+/// A coarse cell (µm = model length, energy unit kBT at 300 K) centred at `centre`.
+fn cell_mesh(n: usize, centre: DVec3) -> (Mesh, MembraneModel) {
+    let mut mesh = initial_mesh(&EvansFung::healthy_um(), n, 3).unwrap();
+    let params = ModelParams::coarse_grained(n, 300.0).unwrap();
+    let c = MembraneConstants::from_params(&params, 1e-6, KBT_300, 2e-4, 1e2);
+    let topo = mesh.topology().unwrap();
+    let model = MembraneModel::uniform(&topo, &c, mesh.area(), mesh.volume()).unwrap();
+    for v in mesh.vertices.iter_mut() {
+        *v += centre;
+    }
+    (mesh, model)
+}
+
+fn field(fluid: PairParams, fsi_gamma: f64) -> ForceField {
+    let mut f = ForceField::new(
+        vec![TypeSpec::new("outer"), TypeSpec::new("inner"), TypeSpec::new("membrane")],
+        fluid,
+    )
+    .unwrap();
+    f.set_pair(OUTER as usize, INNER as usize, PairParams { gamma: 0.0, kbt: 0.0, ..fluid }).unwrap();
+    let fsi = PairParams {
+        a: 0.0,
+        gamma: fsi_gamma,
+        ..fluid
+    };
+    f.set_pair(OUTER as usize, MEMBRANE as usize, fsi).unwrap();
+    f.set_pair(INNER as usize, MEMBRANE as usize, fsi).unwrap();
+    f.set_pair(MEMBRANE as usize, MEMBRANE as usize, PairParams::none()).unwrap();
+    f
+}
+
+fn momentum(p: &Particles) -> DVec3 {
+    p.vel.iter().fold(DVec3::ZERO, |a, v| a + *v) // every mass is 1
+}
+
+fn momentum_scale(p: &Particles) -> f64 {
+    p.vel.iter().map(|v| v.length()).sum()
+}
+
+/// The same cell, moving rigidly at 20 rc per time unit, in a 12³ box (crosses the periodic
+/// boundary ~3 times) and in a 100³ box (never does): the tracked unwrapped positions, the
+/// membrane forces, the area and the volume agree to round-off.
+#[test]
+fn cell_crossing_the_periodic_boundary_is_unchanged() {
+    let run = |l: f64| {
+        let (mesh, model) = cell_mesh(200, DVec3::splat(6.0));
+        let config = SimConfig::new(DVec3::splat(l), 0.001, 5);
+        let none = PairParams {
+            a: 0.0,
+            gamma: 0.0,
+            kbt: 0.0,
+            ..PairParams::groot_warren()
+        };
+        let f = ForceField::new(vec![TypeSpec::new("membrane")], none).unwrap();
+        let mut p = Particles::with_capacity(mesh.vertices.len());
+        for (k, v) in mesh.vertices.iter().enumerate() {
+            p.push(*v, DVec3::new(20.0, 7.0, -3.0), 0, k as u32);
+        }
+        let cfg = CellConfig {
+            first: 0,
+            outer_type: u16::MAX,
+            inner_type: u16::MAX,
+            check_every: 0,
+            wall: None,
+        };
+        let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
+        let mut sim = Simulation::with_extension(config, f, p, cell).unwrap();
+        sim.run(1800).unwrap();
+        let cell = sim.extension();
+        let (a, v) = cell.model().area_volume(cell.vertices()).unwrap();
+        let mut fm = vec![DVec3::ZERO; cell.vertices().len()];
+        cell.model().add_forces(cell.vertices(), &mut fm).unwrap();
+        (cell.vertices().to_vec(), fm, a, v, sim.particles().pos.clone())
+    };
+    let (xs, fs, a_s, v_s, wrapped) = run(12.0);
+    let (xb, fb, a_b, v_b, _) = run(100.0);
+    // the small box's cell has gone round: some vertices' wrapped positions differ from unwrapped
+    assert!(xs.iter().zip(&wrapped).any(|(u, w)| (*u - *w).length() > 11.0));
+    let travel = (xs[0] - DVec3::splat(6.0)).length();
+    assert!(travel > 30.0, "travelled {travel}");
+    let dx = xs.iter().zip(&xb).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
+    assert!(dx < 1e-9, "unwrapped positions differ by {dx}");
+    let fscale = fb.iter().map(|f| f.length()).fold(0.0, f64::max);
+    let df = fs.iter().zip(&fb).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
+    assert!(df <= 1e-7 * fscale, "forces differ by {df} (scale {fscale})");
+    assert!(((a_s - a_b) / a_b).abs() < 1e-12 && ((v_s - v_b) / v_b).abs() < 1e-12);
+}
+
+/// A cell moving and spinning through a DPD fluid, with inner and outer fluid and no-slip
+/// friction: no particle ends on the wrong side at any check, and the total momentum is
+/// conserved to round-off.
+#[test]
+fn fluid_stays_on_its_side_of_a_moving_cell() {
+    let l = 12.0;
+    let centre = DVec3::splat(l / 2.0);
+    let (mesh, model) = cell_mesh(300, centre);
+    let config = SimConfig::new(DVec3::splat(l), 0.002, 9);
+    let fluid = PairParams::groot_warren();
+    let f = field(fluid, 4.5);
+    let box_ = PeriodicBox::new(config.box_lengths).unwrap();
+    let fluid_p = init::fluid(&config, &ForceField::single(fluid), &init::FluidSpec::standard(), 4).unwrap();
+    let mut p = Particles::with_capacity(fluid_p.len() + mesh.vertices.len());
+    for i in 0..fluid_p.len() {
+        let x = fluid_p.pos[i];
+        let t = if crate::mesh::contains(x, &mesh.vertices, &mesh.triangles) {
+            INNER
+        } else {
+            OUTER
+        };
+        p.push(x, fluid_p.vel[i], t, i as u32);
+    }
+    let first = p.len();
+    let omega = DVec3::new(0.0, 0.0, 0.8);
+    for (k, v) in mesh.vertices.iter().enumerate() {
+        let vel = DVec3::new(1.5, 0.5, 0.0) + omega.cross(*v - centre);
+        p.push(*v, vel, MEMBRANE, (first + k) as u32);
+    }
+    let cfg = CellConfig {
+        first,
+        outer_type: OUTER,
+        inner_type: INNER,
+        check_every: 10,
+        wall: None,
+    };
+    let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
+    let (tested0, wrong0) = cell.count_misplaced(&p.pos, &p.ptype, &box_);
+    assert_eq!(wrong0, 0);
+    assert!(tested0 > 500);
+    let p0 = momentum(&p);
+    let mut sim = Simulation::with_extension(config, f, p, cell).unwrap();
+    sim.run(600).unwrap();
+    let s = sim.extension().stats().clone();
+    eprintln!("{s:?}");
+    assert_eq!(s.checks, 60);
+    assert_eq!(s.misplaced, 0, "{s:?}");
+    assert!(s.bounces > 100, "too few bounces to test anything: {s:?}");
+    let p1 = momentum(sim.particles());
+    let scale = momentum_scale(sim.particles());
+    assert!((p1 - p0).length() < 1e-11 * scale, "momentum {p0} -> {p1}");
+}
