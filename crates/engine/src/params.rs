@@ -35,7 +35,68 @@ pub const STANDARD_FLUID_VISCOSITY: Real = 0.842;
 /// Standard error of [`STANDARD_FLUID_VISCOSITY`].
 pub const STANDARD_FLUID_VISCOSITY_SE: Real = 0.004;
 
+/// Number density of the capillary fluid ([`PairParams::capillary`]); particle mass 1.
+pub const CAPILLARY_FLUID_DENSITY: Real = 3.0;
+/// Time step of the capillary fluid: the largest of 0.005, 0.004 and 0.0025 at which a
+/// periodic box at rest keeps its kinetic kBT within 1.5 % of the thermostat's 1
+/// (`capillary_fluid_timestep_scan` in crates/engine/tests/capillary_fluid.rs: 8 × 8 × 8,
+/// ρ = 3, mean of steps 1000–6000): kBT = 1.0016 ± 0.0006 at 0.005, 1.0018 ± 0.0010 at 0.004,
+/// 1.0028 ± 0.0009 at 0.0025 (and 1.0068 ± 0.0007 at 0.01, not a candidate).
+pub const CAPILLARY_FLUID_TIMESTEP: Real = 0.005;
+/// Shear viscosity of the capillary fluid ([`PairParams::capillary`], ρ = 3, m = 1, Δt =
+/// [`CAPILLARY_FLUID_TIMESTEP`], λ = 0.5), measured by this engine in reverse-Poiseuille flow
+/// like [`STANDARD_FLUID_VISCOSITY`] (6 × 6 × 16, fit over the bins at least rc from the kinks;
+/// `viscosity_capillary_long` in crates/engine/tests/viscosity.rs: 6 seeds × 2 halves at
+/// g = 0.2, 60 000 steps each, 9.164 ± 0.044, SD 0.15 per half; 3 seeds at g = 0.1 give
+/// 9.14 ± 0.14, so the response is linear). Kinetic theory ([`kinetic_theory_viscosity`],
+/// g(r) = 1) gives 11.16, 22 % more; the standard fluid measures 12 % below its theory.
+pub const CAPILLARY_FLUID_VISCOSITY: Real = 9.16;
+/// Standard error of [`CAPILLARY_FLUID_VISCOSITY`] (SD of the 12 halves / √12).
+pub const CAPILLARY_FLUID_VISCOSITY_SE: Real = 0.044;
+
+/// α of the Groot–Warren equation of state p = ρ kBT + α a ρ² (fitted for ρ ≥ 2, rc = 1).
+pub const GROOT_WARREN_EOS_ALPHA: Real = 0.101;
+
+/// Isothermal sound speed of a DPD fluid from the Groot–Warren equation of state
+/// p = ρkBT + α a ρ² (α = [`GROOT_WARREN_EOS_ALPHA`], number density ρ, particle mass m):
+/// c² = dp/d(mρ) = kBT/m + 2αaρ/m. For the standard and the capillary fluid (a = 25, kBT = 1,
+/// ρ = 3, m = 1): c = √16.15 ≈ 4.02. The EOS was fitted for s = 1; a softer weight (s < 1)
+/// changes only the dissipative and random forces, not the conservative one, so the
+/// equilibrium structure and pressure, hence c, are the same.
+pub fn sound_speed(pair: &PairParams, density: Real, mass: Real) -> Real {
+    ((pair.kbt + 2.0 * GROOT_WARREN_EOS_ALPHA * pair.a * density * pair.rc.powi(4)) / mass).sqrt()
+}
+
+/// Kinetic-theory estimate of the shear viscosity (Groot & Warren 1997 for a general weight,
+/// no pair correlations, g(r) = 1): η = ρ m D/2 + 16π γ ρ² rc⁵/(5(s'+1)(s'+2)(s'+3)(s'+4)(s'+5)),
+/// D = 3kBT(s'+1)(s'+2)(s'+3)/(8π ρ γ rc³), with s' = 2s the exponent of w^D. Standard fluid:
+/// 0.957; capillary fluid: 11.16. The measured values are lower (correlations; see
+/// [`STANDARD_FLUID_VISCOSITY`], [`CAPILLARY_FLUID_VISCOSITY`]).
+pub fn kinetic_theory_viscosity(pair: &PairParams, density: Real, mass: Real) -> Real {
+    let sp = 2.0 * pair.s;
+    let (g, n, rc) = (pair.gamma, density, pair.rc);
+    let d = 3.0 * pair.kbt * (sp + 1.0) * (sp + 2.0) * (sp + 3.0) / (8.0 * std::f64::consts::PI * n * g * rc.powi(3));
+    let diss = 16.0 * std::f64::consts::PI * g * n * n * rc.powi(5)
+        / (5.0 * (sp + 1.0) * (sp + 2.0) * (sp + 3.0) * (sp + 4.0) * (sp + 5.0));
+    n * mass * d / 2.0 + diss
+}
+
 impl PairParams {
+    /// The capillary fluid: a = 25, γ = 40, kBT = 1, rc = 1, s = 1/4 (w^D = (1 − r/rc)^½),
+    /// at ρ = [`CAPILLARY_FLUID_DENSITY`], m = 1, Δt = [`CAPILLARY_FLUID_TIMESTEP`]. Its
+    /// viscosity ([`CAPILLARY_FLUID_VISCOSITY`]) is ≈ 11× the standard fluid's at the same
+    /// sound speed (same a, ρ, kBT), so an RBC at the physical capillary number moves at a
+    /// model velocity closer to the speed of sound (docs/units.md).
+    pub const fn capillary() -> Self {
+        Self {
+            a: 25.0,
+            gamma: 40.0,
+            kbt: 1.0,
+            rc: 1.0,
+            s: 0.25,
+        }
+    }
+
     /// The Groot–Warren standard fluid: a = 25, γ = 4.5, kBT = 1, rc = 1, s = 1.
     pub const fn groot_warren() -> Self {
         Self {

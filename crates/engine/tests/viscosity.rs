@@ -48,10 +48,47 @@ pub struct ReversePoiseuilleResult {
     pub local: Vec<(f64, f64)>,
 }
 
-/// Runs the reverse-Poiseuille measurement.
-/// The fluid starts from the steady profile of η0 = 0.9 so that only the (small) mismatch has
-/// to relax (slowest mode τ = ρ Lz²/(4π² η) ≈ 8.4 for Lz = 10).
+/// The fluid of a reverse-Poiseuille run.
+#[derive(Clone, Copy, Debug)]
+pub struct RpFluid {
+    /// Pair parameters (one type, mass 1).
+    pub pair: PairParams,
+    /// Number density.
+    pub density: f64,
+    /// Time step.
+    pub dt: f64,
+    /// Viscosity of the steady profile the run starts from (a guess: only the mismatch relaxes).
+    pub eta_guess: f64,
+}
+
+impl RpFluid {
+    /// The standard fluid at Δt = 0.01, started from the profile of η0 = 0.9.
+    pub fn standard() -> Self {
+        Self {
+            pair: PairParams::groot_warren(),
+            density: 3.0,
+            dt: 0.01,
+            eta_guess: 0.9,
+        }
+    }
+
+    /// The capillary fluid ([`PairParams::capillary`]) at its density and time step, started
+    /// from the profile of its kinetic-theory viscosity.
+    pub fn capillary() -> Self {
+        Self {
+            pair: PairParams::capillary(),
+            density: CAPILLARY_FLUID_DENSITY,
+            dt: CAPILLARY_FLUID_TIMESTEP,
+            eta_guess: kinetic_theory_viscosity(&PairParams::capillary(), CAPILLARY_FLUID_DENSITY, 1.0),
+        }
+    }
+}
+
+/// Runs the reverse-Poiseuille measurement on `fluid`.
+/// The fluid starts from the steady profile of η0 = `fluid.eta_guess` so that only the (small)
+/// mismatch has to relax (slowest mode τ = ρ Lz²/(4π² η) ≈ 8.4 for Lz = 10 and η = 0.9).
 pub fn reverse_poiseuille(
+    fluid: &RpFluid,
     lxy: f64,
     lz: f64,
     g: f64,
@@ -60,12 +97,17 @@ pub fn reverse_poiseuille(
     every: u64,
     seed: u64,
 ) -> ReversePoiseuilleResult {
-    let config = SimConfig::new(DVec3::new(lxy, lxy, lz), 0.01, seed);
-    let field = ForceField::single(PairParams::groot_warren());
-    let mut p = init::fluid(&config, &field, &init::FluidSpec::standard(), seed + 1).unwrap();
+    let config = SimConfig::new(DVec3::new(lxy, lxy, lz), fluid.dt, seed);
+    let field = ForceField::single(fluid.pair);
+    let spec = init::FluidSpec {
+        density: fluid.density,
+        kbt: fluid.pair.kbt,
+        ..init::FluidSpec::standard()
+    };
+    let mut p = init::fluid(&config, &field, &spec, seed + 1).unwrap();
     let h = 0.5 * lz;
     let rho = p.len() as f64 / (lxy * lxy * lz);
-    let eta0 = 0.9;
+    let eta0 = fluid.eta_guess;
     let a0 = rho * g / (2.0 * eta0);
     for (x, v) in p.pos.iter().zip(p.vel.iter_mut()) {
         v.x += if x.z < h {
@@ -130,7 +172,10 @@ pub fn reverse_poiseuille(
     }
 }
 
-use hemodpd_engine::params::{STANDARD_FLUID_VISCOSITY as ETA, STANDARD_FLUID_VISCOSITY_SE as ETA_SE};
+use hemodpd_engine::params::{
+    kinetic_theory_viscosity, CAPILLARY_FLUID_DENSITY, CAPILLARY_FLUID_TIMESTEP, CAPILLARY_FLUID_VISCOSITY,
+    CAPILLARY_FLUID_VISCOSITY_SE, STANDARD_FLUID_VISCOSITY as ETA, STANDARD_FLUID_VISCOSITY_SE as ETA_SE,
+};
 
 /// Mean and standard error of the mean.
 fn mean_se(x: &[f64]) -> (f64, f64) {
@@ -149,7 +194,7 @@ fn mean_se(x: &[f64]) -> (f64, f64) {
 /// at least rc from the kinks) is the one the constant was measured with.
 #[test]
 fn viscosity_reverse_poiseuille_quick() {
-    let r = reverse_poiseuille(6.0, 16.0, 0.1, 3000, 12000, 5, 11);
+    let r = reverse_poiseuille(&RpFluid::standard(), 6.0, 16.0, 0.1, 3000, 12000, 5, 11);
     let [e1, e2] = r.interior;
     let eta = 0.5 * (e1 + e2);
     eprintln!(
@@ -175,7 +220,7 @@ fn viscosity_reverse_poiseuille_long() {
     for (lxy, lz, g) in [(6.0, 16.0, 0.1), (6.0, 16.0, 0.05)] {
         let (mut whole, mut interior, mut kbt) = (Vec::new(), Vec::new(), Vec::new());
         for seed in [1u64, 2, 3, 4] {
-            let r = reverse_poiseuille(lxy, lz, g, 6000, 30000, 5, seed);
+            let r = reverse_poiseuille(&RpFluid::standard(), lxy, lz, g, 6000, 30000, 5, seed);
             eprintln!(
                 "L = {lxy}x{lxy}x{lz}, g = {g}, seed {seed}: η = {:.4} {:.4} (interior {:.4} {:.4}), kBT_pec = {:.4}",
                 r.whole[0], r.whole[1], r.interior[0], r.interior[1], r.peculiar_kbt
@@ -224,7 +269,7 @@ fn viscosity_lammps_geometry() {
     let mut interior = Vec::new();
     for block in 0..5u64 {
         // independent blocks: the same protocol from 5 seeds (each 10 000 sampled steps)
-        let r = reverse_poiseuille(10.0, 20.0, 0.05, 8000, 10000, 10, 100 + block);
+        let r = reverse_poiseuille(&RpFluid::standard(), 10.0, 20.0, 0.05, 8000, 10000, 10, 100 + block);
         eprintln!(
             "block {block}: whole halves {:.4} {:.4}, interior {:.4} {:.4}, kBT_pec {:.4}",
             r.whole[0], r.whole[1], r.interior[0], r.interior[1], r.peculiar_kbt
@@ -259,7 +304,7 @@ fn viscosity_box_dependence() {
         let mut sums: Vec<(f64, f64, usize)> = Vec::new();
         let mut interior = Vec::new();
         for seed in [1u64, 2] {
-            let r = reverse_poiseuille(lxy, lz, g, neq.max(6000), 30000, 5, 200 + seed);
+            let r = reverse_poiseuille(&RpFluid::standard(), lxy, lz, g, neq.max(6000), 30000, 5, 200 + seed);
             interior.extend(r.interior);
             for (d, e) in r.local {
                 match sums.iter_mut().find(|s| (s.0 - d).abs() < 1e-9) {
@@ -299,4 +344,74 @@ fn viscosity_box_dependence() {
         // every box within 5 % of the 6 × 6 × 16 constant (Lz = 20 reads ≈ 3 % high)
         assert!((m / ETA - 1.0).abs() < 0.05, "{lxy}x{lxy}x{lz}: {m} ± {se}");
     }
+}
+
+/// Quick check of [`CAPILLARY_FLUID_VISCOSITY`]: one 6 × 6 × 16 box of the capillary fluid at
+/// g = 0.2 (centre velocity ρgh²/8η ≈ 0.44), 40 000 sampled steps of Δt = 0.005 (200 time
+/// units, ≈ 15 s). The long runs scatter by SD 0.152 per half over 60 000 steps
+/// (`viscosity_capillary_long`), so each half here scatters by 0.152·√(60/40) ≈ 0.19 and their
+/// mean by 0.13: it must lie within 3 of those plus the constant's SE (0.44, 4.8 %) of
+/// [`CAPILLARY_FLUID_VISCOSITY`], the halves within 4 SD of each other. Dropping the s = 1/4
+/// weight (s = 1) or using the standard γ moves η by far more (kinetic theory: 1.5 and 1.4).
+#[test]
+fn viscosity_capillary_quick() {
+    let r = reverse_poiseuille(&RpFluid::capillary(), 6.0, 16.0, 0.2, 2000, 40000, 5, 11);
+    let [e1, e2] = r.interior;
+    let eta = 0.5 * (e1 + e2);
+    eprintln!(
+        "quick capillary reverse Poiseuille: interior η = {e1:.3}, {e2:.3} (mean {eta:.3}; whole halves {:.3} {:.3}), kBT_pec = {:.4}",
+        r.whole[0], r.whole[1], r.peculiar_kbt
+    );
+    let sd_half = 0.152 * (60.0f64 / 40.0).sqrt();
+    assert!((e1 - e2).abs() < 4.0 * sd_half * 2f64.sqrt(), "halves {e1} {e2}");
+    assert!(
+        (eta - CAPILLARY_FLUID_VISCOSITY).abs() < 3.0 * sd_half / 2f64.sqrt() + CAPILLARY_FLUID_VISCOSITY_SE,
+        "η = {eta} vs {CAPILLARY_FLUID_VISCOSITY}"
+    );
+}
+
+/// The measurement behind [`CAPILLARY_FLUID_VISCOSITY`]: 6 seeds of the 6 × 6 × 16 capillary
+/// fluid at g = 0.2 (12 halves, 60 000 sampled steps of Δt = 0.005 each), and 3 seeds at
+/// g = 0.1 (half the shear rate) for linear response. Asserts the constant within 3 standard
+/// errors of the g = 0.2 mean, the two forcings within 3 combined SE, and prints the
+/// kinetic-theory value beside them.
+#[test]
+#[ignore]
+fn viscosity_capillary_long() {
+    let mut per_g = Vec::new();
+    for (g, seeds) in [(0.2, &[1u64, 2, 3, 4, 5, 6][..]), (0.1, &[7u64, 8, 9][..])] {
+        let (mut whole, mut interior, mut kbt) = (Vec::new(), Vec::new(), Vec::new());
+        for &seed in seeds {
+            let r = reverse_poiseuille(&RpFluid::capillary(), 6.0, 16.0, g, 2000, 60000, 5, seed);
+            eprintln!(
+                "capillary fluid, g = {g}, seed {seed}: η = {:.3} {:.3} (interior {:.3} {:.3}), kBT_pec = {:.4}",
+                r.whole[0], r.whole[1], r.interior[0], r.interior[1], r.peculiar_kbt
+            );
+            whole.extend(r.whole);
+            interior.extend(r.interior);
+            kbt.push(r.peculiar_kbt);
+        }
+        let (w, wse) = mean_se(&whole);
+        let (i, ise) = mean_se(&interior);
+        let sd = ise * (interior.len() as f64).sqrt();
+        let (t, _) = mean_se(&kbt);
+        eprintln!(
+            "SUMMARY capillary g = {g}: interior η = {i:.3} ± {ise:.3} (SD per half {sd:.3}, {} halves), whole halves {w:.3} ± {wse:.3}, kBT_pec {t:.4}",
+            interior.len()
+        );
+        per_g.push((i, ise));
+    }
+    let kt = kinetic_theory_viscosity(&PairParams::capillary(), CAPILLARY_FLUID_DENSITY, 1.0);
+    let ((a, sa), (b, sb)) = (per_g[0], per_g[1]);
+    eprintln!(
+        "SUMMARY capillary fluid: η = {a:.3} ± {sa:.3} (g = 0.2), {b:.3} ± {sb:.3} (g = 0.1); constant {CAPILLARY_FLUID_VISCOSITY} ± {CAPILLARY_FLUID_VISCOSITY_SE}; kinetic theory {kt:.3}"
+    );
+    assert!(
+        (a - b).abs() < 3.0 * (sa * sa + sb * sb).sqrt(),
+        "g = 0.2: {a} ± {sa}, g = 0.1: {b} ± {sb}"
+    );
+    assert!(
+        (a - CAPILLARY_FLUID_VISCOSITY).abs() < 3.0 * sa,
+        "measured {a} ± {sa}, CAPILLARY_FLUID_VISCOSITY = {CAPILLARY_FLUID_VISCOSITY}"
+    );
 }

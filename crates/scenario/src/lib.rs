@@ -12,6 +12,7 @@ pub mod file;
 pub mod fluid;
 pub mod mesh_cache;
 pub mod stretching;
+pub mod units;
 
 pub use file::{load, load_str, Scenario, ScenarioError};
 
