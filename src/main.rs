@@ -45,6 +45,10 @@ enum Command {
         /// No progress output.
         #[arg(long)]
         quiet: bool,
+        /// Print how SI maps onto model units (every scale, every dimensionless group in both
+        /// systems, the time step in seconds) and exit without running (capillary scenarios).
+        #[arg(long, conflicts_with = "resume")]
+        explain_units: bool,
     },
     /// Validate scenario files without running them.
     Check {
@@ -254,7 +258,9 @@ fn dispatch(cli: Cli) -> Result<()> {
             out,
             threads,
             quiet,
+            explain_units,
         } => match (scenario, resume) {
+            (Some(scenario), None) if explain_units => explain(&scenario, &sets),
             (_, Some(dir)) => resume_run(&dir, threads, quiet),
             (Some(scenario), None) => run(&scenario, &sets, out, threads, quiet),
             (None, None) => bail!("give a scenario file or --resume DIR"),
@@ -382,6 +388,22 @@ fn run_one(
         .map_err(anyhow::Error::new)?;
     let wall = t0.elapsed().as_secs_f64();
     write_summary(path, &scenario, sets, threads, wall, results, &out_dir, quiet)
+}
+
+/// `run --explain-units`: the unit mapping of a scenario in SI.
+fn explain(path: &Path, sets: &[String]) -> Result<()> {
+    let sc = hemodpd_scenario::load(path, sets)?;
+    match &sc {
+        hemodpd_scenario::Scenario::Capillary(c) => {
+            print!("{}", c.explain_units()?);
+            Ok(())
+        }
+        other => bail!(
+            "--explain-units: {} is a {} scenario, written in model units already; only capillary scenarios map SI onto the model",
+            path.display(),
+            other.kind()
+        ),
+    }
 }
 
 fn resume_run(dir: &Path, threads: Option<usize>, quiet: bool) -> Result<()> {

@@ -37,6 +37,10 @@ use crate::forces::ForceWorkspace;
 use crate::mesh::winding_number;
 use crate::MembraneModel;
 
+/// Distance off the end-of-step triangle, relative to its longest edge, at which a bounced
+/// particle is put back on its side.
+const PLACEMENT_OFFSET: f64 = 1e-5;
+
 /// Meshes with at least this many vertices use the parallel force evaluation.
 const PARALLEL_FORCES_FROM: usize = 4000;
 
@@ -131,9 +135,10 @@ pub struct Cell {
 
 /// Bounding box of a set of points.
 fn bounds<'a>(points: impl Iterator<Item = &'a DVec3>) -> (DVec3, DVec3) {
-    points.fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| {
-        (lo.min(*p), hi.max(*p))
-    })
+    points.fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    )
 }
 
 /// Whether the segment from `a` to `b` meets the box [lo, hi] (slab test).
@@ -196,14 +201,21 @@ impl Cell {
         if unwrapped.len() != model.n_vertices() {
             return Err(EngineError::invalid(
                 "cell vertices",
-                format!("{} positions for a model of {} vertices", unwrapped.len(), model.n_vertices()),
+                format!(
+                    "{} positions for a model of {} vertices",
+                    unwrapped.len(),
+                    model.n_vertices()
+                ),
             ));
         }
         if let Some(w) = &config.wall {
             if !(w.range > 0.0 && w.range.is_finite() && w.strength >= 0.0 && w.strength.is_finite()) {
                 return Err(EngineError::invalid(
                     "cell wall repulsion",
-                    format!("range {} and strength {} (need range > 0, strength ≥ 0)", w.range, w.strength),
+                    format!(
+                        "range {} and strength {} (need range > 0, strength ≥ 0)",
+                        w.range, w.strength
+                    ),
                 ));
             }
         }
@@ -333,15 +345,16 @@ impl Cell {
         self.candidates.clear();
         {
             let (pos, vel, ptype) = (&*s.pos, &*s.vel, s.ptype);
-            self.candidates.par_extend((0..pos.len() as u32).into_par_iter().with_min_len(4096).filter(|&i| {
-                let i = i as usize;
-                let t = ptype[i];
-                if (t != inner && t != outer) || vr.contains(&i) {
-                    return false;
-                }
-                let p1 = centre + domain.min_image(pos[i], centre);
-                segment_meets_box(p1 - vel[i] * dt, p1, lo, hi)
-            }));
+            self.candidates
+                .par_extend((0..pos.len() as u32).into_par_iter().with_min_len(4096).filter(|&i| {
+                    let i = i as usize;
+                    let t = ptype[i];
+                    if (t != inner && t != outer) || vr.contains(&i) {
+                        return false;
+                    }
+                    let p1 = centre + domain.min_image(pos[i], centre);
+                    segment_meets_box(p1 - vel[i] * dt, p1, lo, hi)
+                }));
         }
         if self.candidates.is_empty() {
             return Ok(0);
@@ -439,10 +452,25 @@ impl Cell {
                     c1: x1[t[2] as usize],
                 };
                 let b = mesh_bounce::bounce(p0, v, mass[ptype[iu] as usize], dt, &mt)?;
+                // Not advanced for the rest of the step (a reflected path may meet a neighbouring
+                // triangle where the membrane is concave): put at the hit point's place on the
+                // end-of-step triangle, just off it on the side it came from.
+                let w = b.crossing.weights;
+                let end = [mt.a1, mt.b1, mt.c1];
+                let n1 = (end[1] - end[0]).cross(end[2] - end[0]);
+                let position = if n1.length_squared() > 0.0 {
+                    let scale = (end[1] - end[0]).length().max((end[2] - end[0]).length());
+                    end[0] * w[0]
+                        + end[1] * w[1]
+                        + end[2] * w[2]
+                        + n1.normalize() * (b.crossing.side * PLACEMENT_OFFSET * scale)
+                } else {
+                    b.position
+                };
                 Some(BounceEvent {
                     particle: i,
                     triangle: ti,
-                    position: b.position,
+                    position,
                     velocity: b.velocity,
                     vertex_impulse: b.vertex_impulse,
                 })
@@ -515,6 +543,25 @@ impl Extension for Cell {
             self.stats.misplaced += wrong;
             self.stats.misplaced_last = wrong;
             self.stats.checked_last = tested;
+            if wrong > 0 && std::env::var_os("HEMODPD_DEBUG_CROSSINGS").is_some() {
+                let (lo, hi) = bounds(self.x.iter());
+                let c = 0.5 * (lo + hi);
+                for i in 0..s.pos.len() {
+                    let t = s.ptype[i];
+                    if t != self.config.inner_type && t != self.config.outer_type {
+                        continue;
+                    }
+                    let q = c + s.domain.min_image(s.pos[i], c);
+                    let wn = winding_number(q, &self.x, self.model.triangles());
+                    if (t == self.config.inner_type) != (wn > 0.5) {
+                        let dmin = self.x.iter().map(|v| (*v - q).length()).fold(f64::INFINITY, f64::min);
+                        eprintln!(
+                            "misplaced: step {} particle {i} type {t} winding {wn:.3} nearest vertex {dmin:.3} v {}",
+                            s.step, s.vel[i]
+                        );
+                    }
+                }
+            }
             self.timers.checks_s += t0.elapsed().as_secs_f64();
         }
         Ok(())

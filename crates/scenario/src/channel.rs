@@ -448,13 +448,13 @@ fn build(plan: &Plan) -> Result<(Simulation<Walls>, String), RunError> {
     Ok((sim, source))
 }
 
-fn json_into_checkpoint<T: Serialize>(ck: &mut Checkpoint, name: &str, value: &T) -> Result<(), RunError> {
+pub(crate) fn json_into_checkpoint<T: Serialize>(ck: &mut Checkpoint, name: &str, value: &T) -> Result<(), RunError> {
     let bytes = serde_json::to_vec(value).map_err(|e| RunError::Output(format!("checkpoint {name}: {e}")))?;
     ck.insert_u8(name, bytes);
     Ok(())
 }
 
-fn json_from_checkpoint<T: for<'de> Deserialize<'de>>(ck: &Checkpoint, name: &str) -> Result<T, RunError> {
+pub(crate) fn json_from_checkpoint<T: for<'de> Deserialize<'de>>(ck: &Checkpoint, name: &str) -> Result<T, RunError> {
     let bytes = ck.u8s(name).map_err(|e| RunError::Output(format!("checkpoint: {e}")))?;
     serde_json::from_slice(bytes).map_err(|e| RunError::Output(format!("checkpoint {name}: {e}")))
 }

@@ -34,6 +34,7 @@ pub enum Scenario {
     DpdFluid(FluidScenario),
     PoiseuilleTube(TubeScenario),
     Couette(CouetteScenario),
+    Capillary(crate::capillary::CapillaryScenario),
 }
 
 impl Scenario {
@@ -43,6 +44,7 @@ impl Scenario {
             Scenario::DpdFluid(s) => s.seed,
             Scenario::PoiseuilleTube(s) => s.seed,
             Scenario::Couette(s) => s.seed,
+            Scenario::Capillary(s) => s.seed,
         }
     }
     pub fn kind(&self) -> &'static str {
@@ -51,6 +53,7 @@ impl Scenario {
             Scenario::DpdFluid(_) => "dpd-fluid",
             Scenario::PoiseuilleTube(_) => "poiseuille-tube",
             Scenario::Couette(_) => "couette",
+            Scenario::Capillary(_) => "capillary",
         }
     }
     /// The resolved scenario (defaults filled in, overrides applied) as TOML text.
@@ -512,7 +515,13 @@ pub fn load(path: &Path, sets: &[String]) -> Result<Scenario, ScenarioError> {
     match &mut s {
         Scenario::PoiseuilleTube(t) => t.base_dir = dir.clone(),
         Scenario::Couette(t) => t.base_dir = dir.clone(),
+        Scenario::Capillary(t) => t.base_dir = dir.clone(),
         _ => {}
+    }
+    if let Scenario::Capillary(c) = &s {
+        if let Some(m) = &c.cell.mesh_file {
+            check_mesh_file(&file, "cell.mesh_file", &c.base_dir, m, c.cell.vertices)?;
+        }
     }
     if let Scenario::Stretching(st) = &mut s {
         st.base_dir = dir.clone();
@@ -553,6 +562,40 @@ pub fn load(path: &Path, sets: &[String]) -> Result<Scenario, ScenarioError> {
     Ok(s)
 }
 
+/// A mesh file named under `key` must exist, be readable and have `vertices` vertices.
+fn check_mesh_file(file: &str, key: &str, base: &Path, m: &Path, vertices: i64) -> Result<(), ScenarioError> {
+    let full = base.join(m);
+    let name = format!("{:?}", m.display().to_string());
+    if !full.exists() {
+        return Err(ScenarioError::Value {
+            file: file.into(),
+            key: key.into(),
+            value: name,
+            allowed: format!("an existing mesh file ({} does not exist)", full.display()),
+        });
+    }
+    let mesh = hemodpd_membrane::meshio::read_mesh(&full).map_err(|e| ScenarioError::Value {
+        file: file.into(),
+        key: key.into(),
+        value: name.clone(),
+        allowed: format!(
+            "a readable closed triangle mesh in µm (OFF, PLY or NAME.vertices.csv + NAME.triangles.csv): {e}"
+        ),
+    })?;
+    let nv = mesh.vertices.len();
+    if nv as i64 != vertices {
+        return Err(ScenarioError::Value {
+            file: file.into(),
+            key: key.into(),
+            value: format!("{name} (with {nv} vertices)"),
+            allowed: format!(
+                "a mesh with {vertices} vertices: the model parameters are coarse-grained from N (Eqs. 8, 9, 12), so the file and the vertex count must agree"
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// As [`load`], from text; `file` names it in messages.
 pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, ScenarioError> {
     let mut table: toml::Table = text.parse().map_err(|e| syntax(file, e))?;
@@ -583,7 +626,7 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
             return Err(ScenarioError::Missing {
                 file: file.into(),
                 key: "kind".into(),
-                what: "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\"".into(),
+                what: "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\", \"capillary\"".into(),
             })
         }
     };
@@ -609,11 +652,16 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
             validate_couette(&s, file)?;
             Ok(Scenario::Couette(s))
         }
+        "capillary" => {
+            let s: crate::capillary::CapillaryScenario = value.try_into().map_err(|e| syntax(file, e))?;
+            crate::capillary::validate(&s, file)?;
+            Ok(Scenario::Capillary(s))
+        }
         other => Err(ScenarioError::Value {
             file: file.into(),
             key: "kind".into(),
             value: format!("{other:?}"),
-            allowed: "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\"".into(),
+            allowed: "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\", \"capillary\"".into(),
         }),
     }
 }

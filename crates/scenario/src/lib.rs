@@ -6,7 +6,9 @@
 //! and what is allowed. [`run`] executes it and returns the results that go into
 //! `summary.json`.
 
+pub mod capillary;
 pub mod channel;
+pub mod driver;
 pub mod figures;
 pub mod file;
 pub mod fluid;
@@ -114,6 +116,10 @@ pub fn schedule_end(scenario: &Scenario) -> (u64, &'static str) {
         Scenario::DpdFluid(s) => (s.run.equilibration_steps.saturating_add(s.run.steps), "steps"),
         Scenario::PoiseuilleTube(s) => (walls_total(&s.walls, &s.run), "steps"),
         Scenario::Couette(s) => (walls_total(&s.walls, &s.run), "steps"),
+        Scenario::Capillary(s) => (
+            capillary::Plan::new(s).map(|p| p.max_steps()).unwrap_or(u64::MAX),
+            "steps",
+        ),
     }
 }
 
@@ -140,6 +146,7 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
             Scenario::PoiseuilleTube(t) => t.base_dir = dir,
             Scenario::Couette(t) => t.base_dir = dir,
             Scenario::Stretching(t) => t.base_dir = dir,
+            Scenario::Capillary(t) => t.base_dir = dir,
             Scenario::DpdFluid(_) => {}
         }
     }
@@ -152,7 +159,9 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
     }
     // a finished run: say so and touch nothing (appending to its files would repeat the end)
     let (total, unit) = schedule_end(&scenario);
-    if ck.step >= total {
+    // stages that end when steady finish before their longest duration: the checkpoint says so
+    let marked = ck.scalar_str("finished").map(|f| f == "yes").unwrap_or(false);
+    if ck.step >= total || marked {
         return Err(RunError::Finished {
             dir: dir.to_path_buf(),
             done: ck.step,
@@ -169,6 +178,7 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
         Scenario::PoiseuilleTube(s) => channel::run_tube(s, &ctx, Some(&ck))?,
         Scenario::Couette(s) => channel::run_couette(s, &ctx, Some(&ck))?,
         Scenario::Stretching(s) => stretching::run_from(s, &ctx, Some(&ck))?,
+        Scenario::Capillary(s) => capillary::run_from(s, &ctx, Some(&ck))?,
     };
     Ok((scenario, results))
 }
@@ -184,5 +194,6 @@ pub fn run(scenario: &Scenario, ctx: &RunContext) -> Result<serde_json::Value, R
         Scenario::DpdFluid(s) => fluid::run(s, ctx),
         Scenario::PoiseuilleTube(s) => channel::run_tube(s, ctx, None),
         Scenario::Couette(s) => channel::run_couette(s, ctx, None),
+        Scenario::Capillary(s) => capillary::run_from(s, ctx, None),
     }
 }

@@ -471,7 +471,7 @@ impl UnitMapping {
 }
 
 /// The dimensionless numbers of a capillary run.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Groups {
     /// Capillary number Ca = η U/μ0 (plasma viscosity, mean velocity).
     pub capillary_number: f64,

@@ -30,11 +30,24 @@ fn cell_mesh(n: usize, centre: DVec3) -> (Mesh, MembraneModel) {
 
 fn field(fluid: PairParams, fsi_gamma: f64) -> ForceField {
     let mut f = ForceField::new(
-        vec![TypeSpec::new("outer"), TypeSpec::new("inner"), TypeSpec::new("membrane")],
+        vec![
+            TypeSpec::new("outer"),
+            TypeSpec::new("inner"),
+            TypeSpec::new("membrane"),
+        ],
         fluid,
     )
     .unwrap();
-    f.set_pair(OUTER as usize, INNER as usize, PairParams { gamma: 0.0, kbt: 0.0, ..fluid }).unwrap();
+    f.set_pair(
+        OUTER as usize,
+        INNER as usize,
+        PairParams {
+            gamma: 0.0,
+            kbt: 0.0,
+            ..fluid
+        },
+    )
+    .unwrap();
     let fsi = PairParams {
         a: 0.0,
         gamma: fsi_gamma,
@@ -42,7 +55,8 @@ fn field(fluid: PairParams, fsi_gamma: f64) -> ForceField {
     };
     f.set_pair(OUTER as usize, MEMBRANE as usize, fsi).unwrap();
     f.set_pair(INNER as usize, MEMBRANE as usize, fsi).unwrap();
-    f.set_pair(MEMBRANE as usize, MEMBRANE as usize, PairParams::none()).unwrap();
+    f.set_pair(MEMBRANE as usize, MEMBRANE as usize, PairParams::none())
+        .unwrap();
     f
 }
 

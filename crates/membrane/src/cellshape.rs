@@ -1,0 +1,166 @@
+//! Shape measures of a cell in a tube (docs/capillary.md), from its vertex positions.
+//!
+//! The tube axis is a coordinate axis (`axis`, the flow along +axis); ρ is the distance of a
+//! vertex from the line through the cell's centroid parallel to it, y its coordinate along it
+//! relative to the centroid.
+//!
+//! * axial length: max y − min y;
+//! * maximum radial extent: max ρ, and the width 2·max ρ;
+//! * deformation index DI = axial length / width (Tomaiuolo et al. 2009 define DI as the cell's
+//!   length over its width in the capillary image, which is this for an axisymmetric cell);
+//! * parachute concavity depth: the mean y of the rear vertices near the axis (ρ < 0.3 max ρ,
+//!   y < 0) minus the rearmost y. At rest (biconcave, axis along the tube) it is the dimple,
+//!   ≈ 0.85 µm for the healthy cell; a parachute deepens it;
+//! * distance from the resting shape: the RMS over vertices of the distance of (ρ, |y|) from the
+//!   resting Evans–Fung profile (the cell's symmetry axis assumed along the tube, as it is
+//!   placed). Rotation-invariant about the axis and insensitive to tank-treading of the
+//!   membrane; at rest it is the thermal roughness.
+
+use glam::DVec3;
+use serde::{Deserialize, Serialize};
+
+use crate::shape::EvansFung;
+
+/// The resting profile as a polyline (ρ, y ≥ 0), in the caller's length unit.
+#[derive(Clone, Debug)]
+pub struct RestProfile {
+    points: Vec<(f64, f64)>,
+}
+
+impl RestProfile {
+    /// The profile of `shape` (lengths in its unit), `n` segments.
+    pub fn new(shape: &EvansFung, n: usize) -> Self {
+        let n = n.max(8);
+        // denser near the rim, where the profile turns: ρ = R sin(φ)
+        let points = (0..=n)
+            .map(|k| {
+                let phi = std::f64::consts::FRAC_PI_2 * k as f64 / n as f64;
+                let rho = shape.r * phi.sin();
+                (rho, shape.half_thickness(rho).max(0.0))
+            })
+            .collect();
+        RestProfile { points }
+    }
+
+    /// Distance of the point (ρ, y), y ≥ 0, from the profile.
+    pub fn distance(&self, rho: f64, y: f64) -> f64 {
+        let mut best = f64::INFINITY;
+        for w in self.points.windows(2) {
+            let (a, b) = (w[0], w[1]);
+            let (dx, dy) = (b.0 - a.0, b.1 - a.1);
+            let l2 = dx * dx + dy * dy;
+            let t = if l2 > 0.0 {
+                (((rho - a.0) * dx + (y - a.1) * dy) / l2).clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+            let (px, py) = (a.0 + t * dx - rho, a.1 + t * dy - y);
+            best = best.min(px * px + py * py);
+        }
+        best.sqrt()
+    }
+}
+
+/// Shape measures of one configuration (lengths in the positions' unit).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct ShapeMetrics {
+    /// Centroid of the vertices.
+    pub centroid: [f64; 3],
+    /// Extent along the tube axis.
+    pub axial_length: f64,
+    /// Largest distance of a vertex from the axis through the centroid.
+    pub max_radius: f64,
+    /// axial length / (2 max radius).
+    pub deformation_index: f64,
+    /// Parachute concavity depth (see the module docs).
+    pub concavity_depth: f64,
+    /// RMS distance from the resting profile.
+    pub distance_from_rest: f64,
+}
+
+/// The measures of the (unwrapped) vertex positions `x`, tube axis `axis` (0, 1, 2).
+pub fn metrics(x: &[DVec3], axis: usize, rest: &RestProfile) -> ShapeMetrics {
+    let n = x.len().max(1) as f64;
+    let c = x.iter().fold(DVec3::ZERO, |a, p| a + *p) / n;
+    let split = |p: DVec3| {
+        let d = p - c;
+        let y = d[axis];
+        let mut perp = d;
+        perp[axis] = 0.0;
+        (perp.length(), y)
+    };
+    let (mut ymin, mut ymax, mut rmax) = (f64::INFINITY, f64::NEG_INFINITY, 0.0f64);
+    let mut sq = 0.0;
+    for p in x {
+        let (rho, y) = split(*p);
+        ymin = ymin.min(y);
+        ymax = ymax.max(y);
+        rmax = rmax.max(rho);
+        let d = rest.distance(rho, y.abs());
+        sq += d * d;
+    }
+    let (mut rear_sum, mut rear_n) = (0.0, 0usize);
+    for p in x {
+        let (rho, y) = split(*p);
+        if rho < 0.3 * rmax && y < 0.0 {
+            rear_sum += y;
+            rear_n += 1;
+        }
+    }
+    let concavity = if rear_n > 0 {
+        rear_sum / rear_n as f64 - ymin
+    } else {
+        0.0
+    };
+    let length = ymax - ymin;
+    ShapeMetrics {
+        centroid: c.to_array(),
+        axial_length: length,
+        max_radius: rmax,
+        deformation_index: if rmax > 0.0 { length / (2.0 * rmax) } else { f64::NAN },
+        concavity_depth: concavity,
+        distance_from_rest: (sq / n).sqrt(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Points on the resting shape (symmetry axis along z) measure: length = the thickness at
+    /// the thickest ring, width = 2R, distance 0, concavity = max half-thickness − centre one.
+    #[test]
+    fn resting_shape_measures() {
+        let s = EvansFung::healthy_um();
+        let rest = RestProfile::new(&s, 400);
+        let mut x = Vec::new();
+        for i in 0..=60 {
+            let rho = s.r * (i as f64 / 60.0).powf(0.5);
+            for k in 0..24 {
+                let phi = k as f64 * std::f64::consts::TAU / 24.0;
+                let h = s.half_thickness(rho).max(0.0);
+                for sign in [1.0, -1.0] {
+                    x.push(DVec3::new(rho * phi.cos(), rho * phi.sin(), sign * h) + DVec3::new(3.0, -2.0, 40.0));
+                }
+            }
+        }
+        let m = metrics(&x, 2, &rest);
+        let (tmin, tmax) = s.thickness_min_max();
+        assert!((m.axial_length - tmax).abs() < 0.02, "{m:?} vs {tmax}");
+        assert!((m.max_radius - s.r).abs() < 1e-9);
+        assert!(m.distance_from_rest < 2e-3, "{m:?}");
+        let dimple = 0.5 * (tmax - tmin);
+        assert!(
+            (m.concavity_depth - dimple).abs() < 0.1,
+            "{} vs {dimple}",
+            m.concavity_depth
+        );
+        // a cell stretched 20 % along the axis is 0.2·|y| RMS away from rest
+        let y: Vec<DVec3> = x
+            .iter()
+            .map(|p| DVec3::new(p.x, p.y, 40.0 + 1.2 * (p.z - 40.0)))
+            .collect();
+        let m2 = metrics(&y, 2, &rest);
+        assert!(m2.distance_from_rest > 0.05 && m2.deformation_index > m.deformation_index);
+    }
+}

@@ -1,0 +1,1484 @@
+//! `kind = "capillary"`: one red blood cell in a tube of plasma (Pivkin & Karniadakis 2008,
+//! Fig. 3), in SI units (docs/capillary.md).
+//!
+//! The scenario owns its section of the file ([`CapillaryScenario`], validated here), the build
+//! (the unit mapping of [`crate::units`], walls cut from an equilibrated fluid, the cell placed
+//! on the axis with its symmetry axis along the tube, inner and outer fluid split by the
+//! generalised winding number), the observation (shape measures, velocities, area, volume,
+//! membrane temperature, crossings) and the results; the stepping loop, frames, checkpoints and
+//! Ctrl-C are [`crate::driver`]'s.
+//!
+//! Particle types: 0 outer fluid (plasma), 1 frozen wall, 2 inner fluid (cytosol), 3 membrane
+//! vertex. Pairs: fluid–fluid of each side with its own γ; inner–outer conservative only (the
+//! membrane has no thickness, so the two fluids still push on each other, but exchange no
+//! momentum dissipatively); membrane–fluid a = 0 and the no-slip friction of each side
+//! ([`crate::units::fsi_friction`]); membrane–wall as membrane–plasma plus a short repulsion;
+//! membrane–membrane nothing (the membrane model acts between vertices).
+
+use crate::driver::{self, Stepper};
+use crate::file::ScenarioError;
+use crate::fluid::{out_err, particles_from_checkpoint, particles_into_checkpoint, CHECKPOINT_FILE, TRAJECTORY_FILE};
+use crate::units::{self, FluidModel, PhysicalSystem, ThermalChoice, UnitMapping, MMHG_PER_MM_IN_PA_PER_M};
+use crate::{mesh_cache, RunContext, RunError};
+use glam::DVec3;
+use hemodpd_engine::walls::{self, Reflection, WallConfig, WallSetup, WallShape, Walls, WallsState};
+use hemodpd_engine::{ForceField, PairParams, Particles, PeriodicBox, SimConfig, SimState, Simulation, TypeSpec};
+use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
+use hemodpd_io::{FrameScalar, GridSpec, MetaValue, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
+use hemodpd_membrane::cellshape::{self, RestProfile, ShapeMetrics};
+use hemodpd_membrane::coupling::{Cell, CellConfig, CellState, WallRepulsion};
+use hemodpd_membrane::forces::MembraneConstants;
+use hemodpd_membrane::params::ModelParams;
+use hemodpd_membrane::shape::EvansFung;
+use hemodpd_membrane::{MembraneModel, Mesh, ReferenceState};
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use std::path::PathBuf;
+
+/// Type of the outer fluid (plasma).
+pub const OUTER: u16 = 0;
+/// Type of the frozen wall particles.
+pub const WALL: u16 = 1;
+/// Type of the inner fluid (cytosol).
+pub const INNER: u16 = 2;
+/// Type of the membrane vertices.
+pub const MEMBRANE: u16 = 3;
+
+/// Axis of the tube (z).
+const AXIS: usize = 2;
+
+// ---------------------------------------------------------------------------------------------
+// The file
+
+fn d_ten() -> f64 {
+    10.0
+}
+fn d_len() -> f64 {
+    45.0
+}
+fn d_eta() -> f64 {
+    1.2e-3
+}
+fn d_one() -> f64 {
+    1.0
+}
+fn d_temp() -> f64 {
+    300.0
+}
+fn d_n() -> i64 {
+    500
+}
+fn d_ka() -> f64 {
+    hemodpd_membrane::forces::DEFAULT_K_AREA_N_PER_M
+}
+fn d_kv() -> f64 {
+    hemodpd_membrane::forces::DEFAULT_K_VOLUME_N_PER_M2
+}
+fn d_thermal() -> String {
+    "auto".into()
+}
+fn d_mach() -> f64 {
+    units::MACH_LIMIT
+}
+fn d_check() -> u64 {
+    500
+}
+fn d_range() -> f64 {
+    0.3
+}
+fn d_sample() -> u64 {
+    20
+}
+fn d_control() -> u64 {
+    50
+}
+fn d_tol() -> f64 {
+    0.02
+}
+fn d_frame() -> f64 {
+    1e-3
+}
+
+/// `[tube]`: the capillary.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CapillaryTube {
+    /// Inner diameter, µm (default 10).
+    #[serde(default = "d_ten")]
+    pub diameter_um: f64,
+    /// Length along the periodic axis, µm (default 45).
+    #[serde(default = "d_len")]
+    pub length_um: f64,
+}
+
+/// `[plasma]`: the fluids.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlasmaSection {
+    /// Plasma viscosity, Pa·s (default 1.2e-3).
+    #[serde(default = "d_eta")]
+    pub viscosity_pa_s: f64,
+    /// Inner (cytosol) over plasma viscosity (default 1, the paper; ≈ 5 is physiological).
+    #[serde(default = "d_one")]
+    pub viscosity_ratio: f64,
+}
+
+/// `[cell]`: the membrane (parameters from N by the paper's Eqs. 8, 9, 12).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CellSection {
+    /// Vertices N ≥ 100 (default 500).
+    #[serde(default = "d_n")]
+    pub vertices: i64,
+    /// Temperature, K (default 300, the paper's).
+    #[serde(default = "d_temp")]
+    pub temperature_k: f64,
+    /// "stress-free" (default) or "uniform" (the paper's single L0).
+    #[serde(default)]
+    pub reference: ReferenceState,
+    /// Multiplies the Eq. 12 persistence length (default 1).
+    #[serde(default = "d_one")]
+    pub persistence_scale: f64,
+    /// k_a, N/m (default 2e-3).
+    #[serde(default = "d_ka")]
+    pub area_constraint_n_per_m: f64,
+    /// k_v, N/m² (default 1e3).
+    #[serde(default = "d_kv")]
+    pub volume_constraint_n_per_m2: f64,
+    /// A mesh in µm instead of the generated one (its vertex count must equal `vertices`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh_file: Option<PathBuf>,
+}
+
+/// `[model]`: how SI maps onto the DPD model (docs/units.md).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelSection {
+    /// µm per rc (default 1).
+    #[serde(default = "d_one")]
+    pub length_um_per_rc: f64,
+    /// "auto" (default: the smallest thermal factor f ≥ 1 that keeps the Mach number at the
+    /// fastest stage's velocity ≤ `max_mach`), "exact" (f = 1) or a number f ≥ 1.
+    #[serde(default = "d_thermal")]
+    pub thermal_factor: String,
+    /// Mach bound for "auto" (default 0.25, the largest allowed).
+    #[serde(default = "d_mach")]
+    pub max_mach: f64,
+    /// Model time step (default: the capillary fluid's, 0.005).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timestep: Option<f64>,
+    /// Steps between inside/outside checks of the fluid (default 500; 0: never).
+    #[serde(default = "d_check")]
+    pub crossing_check_every_steps: u64,
+    /// Range of the membrane–wall repulsion, rc (default 0.3).
+    #[serde(default = "d_range")]
+    pub wall_repulsion_range_rc: f64,
+    /// Steps between updates of the mean-velocity controller (default 50).
+    #[serde(default = "d_control")]
+    pub flow_control_every_steps: u64,
+}
+
+/// One `[[stage]]` of the protocol. A stage drives the flow with at most one of the three
+/// drive keys (none: drive off) and ends after `duration_s`, or earlier when `until_steady`
+/// and the flow and the cell are steady (docs/capillary.md).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StageSection {
+    pub name: String,
+    /// Longest duration, s.
+    pub duration_s: f64,
+    /// Mean fluid velocity held by a controller, m/s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_velocity_m_per_s: Option<f64>,
+    /// Pressure gradient, Pa/m (a body force on the fluid).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pressure_gradient_pa_per_m: Option<f64>,
+    /// Pressure gradient, mmHg/mm.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pressure_gradient_mmhg_per_mm: Option<f64>,
+    /// End as soon as steady (default false).
+    #[serde(default)]
+    pub until_steady: bool,
+    /// Window over which steadiness is judged, s (default: a tenth of the duration).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steady_window_s: Option<f64>,
+    /// Steady when consecutive window means change by less than this fraction of their scale
+    /// (default 0.02).
+    #[serde(default = "d_tol")]
+    pub steady_tolerance: f64,
+}
+
+/// `[output]`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CapillaryOutput {
+    /// Steps between samples of the measures (default 20).
+    #[serde(default = "d_sample")]
+    pub sample_every_steps: u64,
+    /// Seconds between trajectory frames (membrane + binned fluid); 0: none (default 1 ms).
+    #[serde(default = "d_frame")]
+    pub frame_every_s: f64,
+    /// Steps between checkpoints; 0 (default): only at the end and on Ctrl-C.
+    #[serde(default)]
+    pub checkpoint_every_steps: u64,
+}
+
+impl Default for CapillaryOutput {
+    fn default() -> Self {
+        Self {
+            sample_every_steps: d_sample(),
+            frame_every_s: d_frame(),
+            checkpoint_every_steps: 0,
+        }
+    }
+}
+
+/// `kind = "capillary"`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CapillaryScenario {
+    pub format_version: u32,
+    pub kind: String,
+    pub seed: u64,
+    pub tube: CapillaryTube,
+    #[serde(default = "default_plasma")]
+    pub plasma: PlasmaSection,
+    pub cell: CellSection,
+    #[serde(default = "default_model")]
+    pub model: ModelSection,
+    pub stage: Vec<StageSection>,
+    #[serde(default)]
+    pub output: CapillaryOutput,
+    /// Directory of the scenario file; not part of the file.
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
+fn default_plasma() -> PlasmaSection {
+    toml::from_str("").expect("defaults")
+}
+fn default_model() -> ModelSection {
+    toml::from_str("").expect("defaults")
+}
+
+/// What drives a stage, in SI.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Drive {
+    Off,
+    MeanVelocity(f64),
+    PressureGradient(f64),
+}
+
+impl StageSection {
+    /// The drive (validated: at most one key).
+    pub fn drive(&self) -> Drive {
+        if let Some(u) = self.mean_velocity_m_per_s {
+            Drive::MeanVelocity(u)
+        } else if let Some(g) = self.pressure_gradient_pa_per_m {
+            Drive::PressureGradient(g)
+        } else if let Some(g) = self.pressure_gradient_mmhg_per_mm {
+            Drive::PressureGradient(g * MMHG_PER_MM_IN_PA_PER_M)
+        } else {
+            Drive::Off
+        }
+    }
+}
+
+impl CapillaryScenario {
+    /// The membrane parameters of level N.
+    pub fn params(&self) -> Result<ModelParams, RunError> {
+        Ok(ModelParams::with_persistence_scale(
+            self.cell.vertices as usize,
+            self.cell.temperature_k,
+            self.cell.persistence_scale,
+        )?)
+    }
+
+    /// The fastest stage's mean velocity (a target, or the Poiseuille estimate of a pressure
+    /// gradient), m/s; the unit mapping is chosen for it.
+    pub fn characteristic_velocity(&self) -> f64 {
+        let d = self.tube.diameter_um * 1e-6;
+        self.stage
+            .iter()
+            .map(|s| match s.drive() {
+                Drive::Off => 0.0,
+                Drive::MeanVelocity(u) => u.abs(),
+                Drive::PressureGradient(g) => units::poiseuille_mean_velocity(g.abs(), d, self.plasma.viscosity_pa_s),
+            })
+            .fold(0.0, f64::max)
+    }
+
+    /// The physical system.
+    pub fn physical(&self) -> Result<PhysicalSystem, RunError> {
+        let p = self.params()?;
+        let mut sys = PhysicalSystem::new(
+            &p,
+            self.tube.diameter_um * 1e-6,
+            self.tube.length_um * 1e-6,
+            self.plasma.viscosity_pa_s,
+            self.characteristic_velocity().max(1e-9),
+        );
+        sys.viscosity_ratio = self.plasma.viscosity_ratio;
+        Ok(sys)
+    }
+
+    fn thermal(&self) -> ThermalChoice {
+        match self.model.thermal_factor.trim() {
+            "auto" => ThermalChoice::Auto {
+                max_mach: self.model.max_mach,
+            },
+            "exact" => ThermalChoice::Exact,
+            s => ThermalChoice::Factor(s.parse().unwrap_or(f64::NAN)),
+        }
+    }
+
+    /// The unit mapping (errors name the scenario key).
+    pub fn mapping(&self) -> Result<(PhysicalSystem, UnitMapping), RunError> {
+        let sys = self.physical()?;
+        let m = UnitMapping::choose(
+            &sys,
+            &FluidModel::capillary(),
+            self.model.length_um_per_rc * 1e-6,
+            self.thermal(),
+        )
+        .map_err(|e| RunError::Output(format!("unit mapping: {e}")))?;
+        Ok((sys, m))
+    }
+
+    /// The `--explain-units` text.
+    pub fn explain_units(&self) -> Result<String, RunError> {
+        let (sys, m) = self.mapping()?;
+        Ok(units::explain(&sys, &m, &FluidModel::capillary()))
+    }
+}
+
+/// Validates the capillary section of a file: every value, the cell fitting the tube, the
+/// stages, and the unit mapping (Mach and Reynolds bounds), before any work.
+pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> {
+    let fail = |key: &str, value: String, allowed: &str| ScenarioError::Value {
+        file: file.into(),
+        key: key.into(),
+        value,
+        allowed: allowed.into(),
+    };
+    let range = |key: &str, v: f64, lo: f64, hi: f64, allowed: &str| {
+        if v.is_finite() && v >= lo && v <= hi {
+            Ok(())
+        } else {
+            Err(fail(key, format!("{v}"), allowed))
+        }
+    };
+    range("tube.diameter_um", s.tube.diameter_um, 3.0, 100.0, "3–100 µm")?;
+    range("tube.length_um", s.tube.length_um, 10.0, 1000.0, "10–1000 µm")?;
+    range(
+        "plasma.viscosity_pa_s",
+        s.plasma.viscosity_pa_s,
+        1e-4,
+        1.0,
+        "1e-4–1 Pa·s",
+    )?;
+    range("plasma.viscosity_ratio", s.plasma.viscosity_ratio, 0.1, 20.0, "0.1–20")?;
+    if s.cell.vertices < 100 || s.cell.vertices > 50_000 {
+        return Err(fail(
+            "cell.vertices",
+            s.cell.vertices.to_string(),
+            "100–50000 (the coarse-grained model needs N ≥ 100)",
+        ));
+    }
+    range("cell.temperature_k", s.cell.temperature_k, 250.0, 350.0, "250–350 K")?;
+    range("cell.persistence_scale", s.cell.persistence_scale, 0.5, 2.0, "0.5–2")?;
+    range(
+        "cell.area_constraint_n_per_m",
+        s.cell.area_constraint_n_per_m,
+        0.0,
+        1.0,
+        "0–1 N/m",
+    )?;
+    range(
+        "cell.volume_constraint_n_per_m2",
+        s.cell.volume_constraint_n_per_m2,
+        0.0,
+        1e6,
+        "0–1e6 N/m²",
+    )?;
+    range(
+        "model.length_um_per_rc",
+        s.model.length_um_per_rc,
+        0.25,
+        2.0,
+        "0.25–2 µm per rc",
+    )?;
+    match s.model.thermal_factor.trim() {
+        "auto" | "exact" => {}
+        v => match v.parse::<f64>() {
+            Ok(f) if f.is_finite() && f >= 1.0 => {}
+            _ => {
+                return Err(fail(
+                    "model.thermal_factor",
+                    format!("{v:?}"),
+                    "\"auto\", \"exact\" or a number ≥ 1",
+                ))
+            }
+        },
+    }
+    range("model.max_mach", s.model.max_mach, 1e-3, units::MACH_LIMIT, "(0, 0.25]")?;
+    if let Some(dt) = s.model.timestep {
+        range(
+            "model.timestep",
+            dt,
+            1e-4,
+            0.01,
+            "1e-4–0.01 model units (default 0.005)",
+        )?;
+    }
+    range(
+        "model.wall_repulsion_range_rc",
+        s.model.wall_repulsion_range_rc,
+        0.05,
+        1.0,
+        "0.05–1 rc",
+    )?;
+    if s.model.flow_control_every_steps == 0 {
+        return Err(fail("model.flow_control_every_steps", "0".into(), "≥ 1"));
+    }
+    if s.output.sample_every_steps == 0 {
+        return Err(fail("output.sample_every_steps", "0".into(), "≥ 1"));
+    }
+    range(
+        "output.frame_every_s",
+        s.output.frame_every_s,
+        0.0,
+        10.0,
+        "0 (none) to 10 s",
+    )?;
+    if s.stage.is_empty() {
+        return Err(ScenarioError::Missing {
+            file: file.into(),
+            key: "stage".into(),
+            what: "at least one [[stage]] (name, duration_s, and a drive or none)".into(),
+        });
+    }
+    for (k, st) in s.stage.iter().enumerate() {
+        let key = |f: &str| format!("stage[{k}].{f}");
+        range(&key("duration_s"), st.duration_s, 1e-6, 100.0, "1e-6–100 s")?;
+        let drives = [
+            st.mean_velocity_m_per_s.is_some(),
+            st.pressure_gradient_pa_per_m.is_some(),
+            st.pressure_gradient_mmhg_per_mm.is_some(),
+        ];
+        if drives.iter().filter(|&&b| b).count() > 1 {
+            return Err(fail(
+                &key("mean_velocity_m_per_s"),
+                "several drives".into(),
+                "at most one of mean_velocity_m_per_s, pressure_gradient_pa_per_m, pressure_gradient_mmhg_per_mm",
+            ));
+        }
+        if let Some(u) = st.mean_velocity_m_per_s {
+            range(&key("mean_velocity_m_per_s"), u, -0.1, 0.1, "−0.1–0.1 m/s")?;
+        }
+        if let Some(g) = st.pressure_gradient_pa_per_m {
+            range(&key("pressure_gradient_pa_per_m"), g, -1e8, 1e8, "|g| ≤ 1e8 Pa/m")?;
+        }
+        if let Some(g) = st.pressure_gradient_mmhg_per_mm {
+            range(
+                &key("pressure_gradient_mmhg_per_mm"),
+                g,
+                -750.0,
+                750.0,
+                "|g| ≤ 750 mmHg/mm",
+            )?;
+        }
+        if let Some(w) = st.steady_window_s {
+            range(
+                &key("steady_window_s"),
+                w,
+                1e-7,
+                st.duration_s / 2.0,
+                "positive, at most half the duration",
+            )?;
+        }
+        range(&key("steady_tolerance"), st.steady_tolerance, 1e-4, 0.5, "1e-4–0.5")?;
+    }
+    // the cell must fit: its diameter plus two repulsion ranges inside the tube
+    let d0 = 2.0 * EvansFung::healthy_um().r;
+    let margin = 2.0 * s.model.wall_repulsion_range_rc * s.model.length_um_per_rc;
+    if d0 + margin >= s.tube.diameter_um {
+        return Err(fail(
+            "tube.diameter_um",
+            format!("{}", s.tube.diameter_um),
+            &format!(
+                "larger than the resting cell's diameter {d0:.2} µm plus twice the wall repulsion range ({margin:.2} µm): the biconcave cell is placed on the axis, facing the flow"
+            ),
+        ));
+    }
+    if s.tube.length_um < 2.0 * d0 {
+        return Err(fail(
+            "tube.length_um",
+            format!("{}", s.tube.length_um),
+            &format!(
+                "at least twice the cell's diameter ({:.1} µm) so that the cell does not meet its own periodic image",
+                2.0 * d0
+            ),
+        ));
+    }
+    // the unit mapping's own bounds (Mach, Reynolds), with the key of the scenario
+    if let Err(e) = s.mapping() {
+        let (key, value) = if s.characteristic_velocity() > 0.0 {
+            (
+                "stage.mean_velocity_m_per_s",
+                format!("{} m/s (fastest stage)", s.characteristic_velocity()),
+            )
+        } else {
+            ("model", String::new())
+        };
+        return Err(fail(key, value, &e.to_string()));
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// The build
+
+/// Everything derived from the file: the mapping and the model-unit geometry.
+pub struct Plan<'a> {
+    pub s: &'a CapillaryScenario,
+    pub sys: PhysicalSystem,
+    pub map: UnitMapping,
+    pub fluid: FluidModel,
+    pub dt: f64,
+    /// Tube radius and length, rc.
+    pub radius: f64,
+    pub length: f64,
+    pub box_lengths: DVec3,
+    pub shape: WallShape,
+    /// Steps of each stage (its longest duration).
+    pub stage_steps: Vec<u64>,
+    pub frame_every: u64,
+    toml: String,
+}
+
+impl<'a> Plan<'a> {
+    pub fn new(s: &'a CapillaryScenario) -> Result<Self, RunError> {
+        let (sys, map) = s.mapping()?;
+        let fluid = FluidModel::capillary();
+        let dt = s.model.timestep.unwrap_or(fluid.timestep);
+        let radius = map.length_to_model(0.5 * s.tube.diameter_um * 1e-6);
+        let length = map.length_to_model(s.tube.length_um * 1e-6);
+        let rc = fluid.pair.rc;
+        // wall thickness rc plus half an rc of margin on each side
+        let side = 2.0 * (radius + 1.5 * rc);
+        let box_lengths = DVec3::new(side, side, length);
+        let shape = WallShape::Cylinder {
+            axis: AXIS,
+            centre: [0.5 * side, 0.5 * side],
+            radius,
+        };
+        let steps = |t_s: f64| (map.time_to_model(t_s) / dt).round().max(1.0) as u64;
+        let stage_steps = s.stage.iter().map(|st| steps(st.duration_s)).collect();
+        let frame_every = if s.output.frame_every_s > 0.0 {
+            steps(s.output.frame_every_s)
+        } else {
+            0
+        };
+        Ok(Plan {
+            s,
+            sys,
+            map,
+            fluid,
+            dt,
+            radius,
+            length,
+            box_lengths,
+            shape,
+            stage_steps,
+            frame_every,
+            toml: toml::to_string(s).unwrap_or_default(),
+        })
+    }
+
+    fn config(&self) -> SimConfig {
+        SimConfig::new(self.box_lengths, self.dt, self.s.seed)
+    }
+
+    /// Steps of the whole protocol at most.
+    pub fn max_steps(&self) -> u64 {
+        self.stage_steps.iter().sum()
+    }
+
+    /// The tube axis point (x, y) the cell is centred on, and the z of its centre.
+    fn cell_centre(&self) -> DVec3 {
+        DVec3::new(0.5 * self.box_lengths.x, 0.5 * self.box_lengths.y, 0.5 * self.length)
+    }
+
+    /// Viscosity of each side, model units.
+    fn viscosities(&self) -> (f64, f64) {
+        (
+            self.fluid.viscosity,
+            self.fluid.viscosity * self.s.plasma.viscosity_ratio,
+        )
+    }
+
+    /// The force field (see the module docs).
+    fn field(&self, vertex_density: f64) -> Result<ForceField, RunError> {
+        let p = self.fluid.pair;
+        let (eta_o, eta_i) = self.viscosities();
+        // inner γ: η ∝ γ for this fluid (the kinetic part is 0.2 % of η), so the ratio of the
+        // viscosities is the ratio of the γ's to that accuracy (docs/capillary.md)
+        let inner = PairParams {
+            gamma: p.gamma * self.s.plasma.viscosity_ratio,
+            ..p
+        };
+        let fsi = |eta: f64| PairParams {
+            a: 0.0,
+            gamma: units::fsi_friction(eta, self.fluid.density, vertex_density, p.s, p.rc),
+            ..p
+        };
+        let none = PairParams {
+            a: 0.0,
+            gamma: 0.0,
+            kbt: 0.0,
+            ..p
+        };
+        let mut f = ForceField::new(
+            vec![
+                TypeSpec::new("plasma"),
+                TypeSpec::frozen("wall"),
+                TypeSpec::new("cytosol"),
+                TypeSpec::new("membrane"),
+            ],
+            p,
+        )
+        .map_err(engine_err)?;
+        let set = |f: &mut ForceField, a: u16, b: u16, q: PairParams| f.set_pair(a as usize, b as usize, q);
+        set(&mut f, WALL, WALL, none).map_err(engine_err)?;
+        set(&mut f, INNER, INNER, inner).map_err(engine_err)?;
+        set(&mut f, INNER, WALL, inner).map_err(engine_err)?;
+        set(
+            &mut f,
+            INNER,
+            OUTER,
+            PairParams {
+                gamma: 0.0,
+                kbt: 0.0,
+                ..p
+            },
+        )
+        .map_err(engine_err)?;
+        set(&mut f, MEMBRANE, OUTER, fsi(eta_o)).map_err(engine_err)?;
+        set(&mut f, MEMBRANE, WALL, fsi(eta_o)).map_err(engine_err)?;
+        set(&mut f, MEMBRANE, INNER, fsi(eta_i)).map_err(engine_err)?;
+        set(&mut f, MEMBRANE, MEMBRANE, none).map_err(engine_err)?;
+        Ok(f)
+    }
+
+    fn wall_config(&self) -> WallConfig {
+        WallConfig {
+            reflection: Reflection::BounceBack,
+            bins: 5,
+            rc: self.fluid.pair.rc,
+            adapt: false,
+            ..WallConfig::default()
+        }
+    }
+
+    fn constants(&self, params: &ModelParams) -> MembraneConstants {
+        MembraneConstants::from_params(
+            params,
+            self.map.length_m,
+            self.map.energy_j,
+            self.s.cell.area_constraint_n_per_m,
+            self.s.cell.volume_constraint_n_per_m2,
+        )
+    }
+
+    /// The resting mesh in µm (generated and cached, or the user's), on its principal axes.
+    fn mesh_um(&self) -> Result<(Mesh, serde_json::Value), RunError> {
+        match &self.s.cell.mesh_file {
+            Some(f) => {
+                let path = self.s.base_dir.join(f);
+                let (mesh, pose) = mesh_cache::user_mesh(&path)?;
+                Ok((mesh, json!({ "source": "file", "path": path, "pose_change": pose })))
+            }
+            None => {
+                let (mesh, origin) = mesh_cache::relaxed_mesh(self.s.cell.vertices as usize, self.s.seed)?;
+                Ok((mesh, json!({ "source": "generated", "origin": origin })))
+            }
+        }
+    }
+
+    /// The resting mesh in model units, symmetry axis along the tube, centred on the axis.
+    fn rest_mesh(&self) -> Result<(Mesh, serde_json::Value), RunError> {
+        let (mut mesh, info) = self.mesh_um()?;
+        let scale = 1e-6 / self.map.length_m;
+        let c = self.cell_centre();
+        // the generated shape's symmetry axis is y: rotate it onto z, (x, y, z) → (x, −z, y)
+        for v in mesh.vertices.iter_mut() {
+            *v = DVec3::new(v.x, -v.z, v.y) * scale + c;
+        }
+        Ok((mesh, info))
+    }
+
+    fn model(&self, rest: &Mesh) -> Result<MembraneModel, RunError> {
+        let params = self.s.params()?;
+        let c = self.constants(&params);
+        let topo = rest.topology()?;
+        Ok(match self.s.cell.reference {
+            ReferenceState::Uniform => MembraneModel::uniform(&topo, &c, rest.area(), rest.volume())?,
+            ReferenceState::StressFree => MembraneModel::stress_free(&topo, &rest.vertices, &c)?,
+        })
+    }
+
+    fn cell_config(&self, first: usize) -> CellConfig {
+        let rc = self.fluid.pair.rc;
+        // the repulsion at contact: a few times the largest force a plasma pair exerts (a)
+        CellConfig {
+            first,
+            outer_type: OUTER,
+            inner_type: INNER,
+            check_every: self.s.model.crossing_check_every_steps,
+            wall: Some(WallRepulsion {
+                shape: self.shape,
+                range: self.s.model.wall_repulsion_range_rc * rc,
+                strength: 4.0 * self.fluid.pair.a,
+            }),
+        }
+    }
+
+    /// Body force per fluid particle (model) for a pressure gradient (SI): f = ∇p/n.
+    fn body_force_for_gradient(&self, g_pa_per_m: f64) -> f64 {
+        self.map.pressure_gradient_to_model(g_pa_per_m) / self.fluid.density
+    }
+
+    /// Poiseuille body force for a mean velocity U (model): f = 8ηU/(nR²).
+    fn poiseuille_force(&self, u: f64) -> f64 {
+        8.0 * self.fluid.viscosity * u / (self.fluid.density * self.radius * self.radius)
+    }
+}
+
+fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
+    RunError::Engine(e.to_string())
+}
+
+/// An engine error with the particle type named (membrane vertex, fluid particle, ...).
+fn step_err(e: hemodpd_engine::EngineError) -> RunError {
+    use hemodpd_engine::EngineError as E;
+    let part = |t: u16| match t {
+        OUTER => "a plasma particle",
+        INNER => "a cytosol particle",
+        MEMBRANE => "a membrane vertex",
+        _ => "a wall particle",
+    };
+    let hint = |t: u16| {
+        match t {
+        MEMBRANE => "likely cause: the membrane is too stiff for the time step (lower model.timestep) or the drive is beyond the scenario's bounds",
+        _ => "likely cause: the drive is too strong for the fluid (Mach number) or the time step is too large",
+    }
+    };
+    match &e {
+        E::NonFinite { ptype, .. } | E::TooFast { ptype, .. } => {
+            RunError::Engine(format!("{e} — the part is {}; {}", part(*ptype), hint(*ptype)))
+        }
+        _ => RunError::Engine(e.to_string()),
+    }
+}
+
+/// The simulation of a capillary run.
+pub type CapillarySim = Simulation<(Walls, Cell)>;
+
+/// Builds the simulation at step 0.
+fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunError> {
+    let config = plan.config();
+    let setup = WallSetup {
+        shape: plan.shape,
+        pair: plan.fluid.pair,
+        density: plan.fluid.density,
+        thickness: plan.fluid.pair.rc,
+        equilibration_steps: 200,
+    };
+    let (_, base) = walls::build(&config, &setup, plan.s.seed).map_err(engine_err)?;
+    let (rest, info) = plan.rest_mesh()?;
+    let model = plan.model(&rest)?;
+    let vertex_density = rest.vertices.len() as f64 / rest.area();
+    let field = plan.field(vertex_density)?;
+    let mut p = Particles::with_capacity(base.len() + rest.vertices.len());
+    let mut max_id = 0u32;
+    for i in 0..base.len() {
+        let mut t = base.ptype[i];
+        if t == walls::FLUID_TYPE && hemodpd_membrane::mesh::contains(base.pos[i], &rest.vertices, &rest.triangles) {
+            t = INNER;
+        }
+        let t = if t == walls::WALL_TYPE { WALL } else { t };
+        p.push(base.pos[i], base.vel[i], t, base.id[i]);
+        max_id = max_id.max(base.id[i]);
+    }
+    let first = p.len();
+    for (k, v) in rest.vertices.iter().enumerate() {
+        p.push(*v, DVec3::ZERO, MEMBRANE, max_id + 1 + k as u32);
+    }
+    let walls_ext = Walls::new(plan.shape, plan.wall_config()).map_err(engine_err)?;
+    let cell = Cell::new(model, plan.cell_config(first), rest.vertices.clone()).map_err(engine_err)?;
+    let sim = Simulation::with_extension(config, field, p, (walls_ext, cell)).map_err(step_err)?;
+    Ok((sim, rest, info))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Observation
+
+/// One sample, model units.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Sample {
+    pub step: u64,
+    pub stage: usize,
+    /// Time since the stage began.
+    pub stage_time: f64,
+    pub shape: ShapeMetrics,
+    /// Mean axial velocity of the vertices.
+    pub cell_velocity: f64,
+    /// Mean axial velocity of all fluid (plasma and cytosol).
+    pub fluid_velocity: f64,
+    /// (A − A0)/A0 and (V − V0)/V0.
+    pub area_deviation: f64,
+    pub volume_deviation: f64,
+    /// kBT of the vertices (peculiar to their mean velocity), model energy units.
+    pub membrane_kbt: f64,
+    /// Body force per fluid particle.
+    pub body_force: f64,
+}
+
+fn observe(sim: &CapillarySim, rest: &RestProfile, stage: usize, stage_time: f64, body_force: f64) -> Sample {
+    let cell = &sim.extension().1;
+    let x = cell.vertices();
+    let p = sim.particles();
+    let vr = cell.vertex_range();
+    let n = x.len() as f64;
+    let vmean = p.vel[vr.clone()].iter().fold(DVec3::ZERO, |a, v| a + *v) / n;
+    let m = sim.field().types()[MEMBRANE as usize].mass;
+    let kin: f64 = p.vel[vr.clone()].iter().map(|v| (*v - vmean).length_squared()).sum();
+    let membrane_kbt = m * kin / (3.0 * (n - 1.0));
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (v, &t) in p.vel.iter().zip(&p.ptype) {
+        if t == OUTER || t == INNER {
+            sum += v[AXIS];
+            count += 1;
+        }
+    }
+    let model = cell.model();
+    let (a, vol) = model.area_volume(x).unwrap_or((f64::NAN, f64::NAN));
+    Sample {
+        step: sim.step_count(),
+        stage,
+        stage_time,
+        shape: cellshape::metrics(x, AXIS, rest),
+        cell_velocity: vmean[AXIS],
+        fluid_velocity: sum / count.max(1) as f64,
+        area_deviation: a / model.area0() - 1.0,
+        volume_deviation: vol / model.volume0() - 1.0,
+        membrane_kbt,
+        body_force,
+    }
+}
+
+/// The mean-velocity controller of a stage: the law of the tube scenario (docs/walls.md) on the
+/// body force f: every M steps, e = U − ū (ū: the fluid's mean velocity over the window),
+/// I ← I + e·MΔt/τ_v, f = 8η/(nR²)·(e + I), τ_v = nR²/(η j0²). It starts from the Poiseuille
+/// force; the integral term supplies the extra force the cell's resistance needs.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct Controller {
+    pub target: f64,
+    pub integral: f64,
+    pub window_sum: f64,
+    pub window_steps: u64,
+}
+
+/// The run's evolving state besides the simulation (checkpointed as JSON).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct Progress {
+    pub stage: usize,
+    /// Step at which the current stage began.
+    pub stage_start: u64,
+    /// Body force per fluid particle now.
+    pub body_force: f64,
+    pub controller: Option<Controller>,
+    pub samples: Vec<Sample>,
+    /// Steps each finished stage took, and whether it ended steady.
+    pub stage_ends: Vec<(u64, bool)>,
+    pub finished: bool,
+    /// Binned fluid sums since the last frame: count and velocity per bin.
+    pub field_count: Vec<f64>,
+    pub field_velocity: Vec<f64>,
+    pub stepping_seconds: f64,
+}
+
+/// Bins of the fluid field: ~1 rc in each direction.
+fn field_grid(plan: &Plan) -> GridSpec {
+    let b = plan.box_lengths;
+    let shape = [0, 1, 2].map(|k| (b[k].round() as usize).max(1));
+    GridSpec {
+        origin: DVec3::ZERO,
+        spacing: DVec3::new(b.x / shape[0] as f64, b.y / shape[1] as f64, b.z / shape[2] as f64),
+        shape,
+    }
+}
+
+/// A running capillary scenario (the [`Stepper`] of [`driver::drive`]).
+pub struct Run<'a> {
+    plan: &'a Plan<'a>,
+    sim: CapillarySim,
+    rest: Mesh,
+    profile: RestProfile,
+    st: Progress,
+    traj: Option<TrajectoryWriter>,
+    grid: GridSpec,
+    mesh_info: serde_json::Value,
+    clock: std::time::Instant,
+}
+
+impl Run<'_> {
+    fn stage(&self) -> &StageSection {
+        &self.plan.s.stage[self.st.stage]
+    }
+
+    /// Sets the stage's drive at its start.
+    fn start_stage(&mut self) -> Result<(), RunError> {
+        let plan = self.plan;
+        let drive = self.stage().drive();
+        let (force, ctl) = match drive {
+            Drive::Off => (0.0, None),
+            Drive::PressureGradient(g) => (plan.body_force_for_gradient(g), None),
+            Drive::MeanVelocity(u) => {
+                let um = plan.map.velocity_to_model(u);
+                (
+                    plan.poiseuille_force(um),
+                    Some(Controller {
+                        target: um,
+                        ..Default::default()
+                    }),
+                )
+            }
+        };
+        self.st.body_force = force;
+        self.st.controller = ctl;
+        self.apply_force()
+    }
+
+    fn apply_force(&mut self) -> Result<(), RunError> {
+        let f = DVec3::new(0.0, 0.0, self.st.body_force);
+        self.sim.set_body_force(OUTER as usize, f).map_err(engine_err)?;
+        self.sim.set_body_force(INNER as usize, f).map_err(engine_err)
+    }
+
+    fn control(&mut self) -> Result<(), RunError> {
+        let plan = self.plan;
+        let every = plan.s.model.flow_control_every_steps;
+        let Some(c) = self.st.controller.as_mut() else {
+            return Ok(());
+        };
+        let p = self.sim.particles();
+        let (mut sum, mut n) = (0.0, 0usize);
+        for (v, &t) in p.vel.iter().zip(&p.ptype) {
+            if t == OUTER || t == INNER {
+                sum += v[AXIS];
+                n += 1;
+            }
+        }
+        c.window_sum += sum / n.max(1) as f64;
+        c.window_steps += 1;
+        if c.window_steps >= every {
+            let mean = c.window_sum / c.window_steps as f64;
+            let (eta, nr2) = (plan.fluid.viscosity, plan.fluid.density * plan.radius * plan.radius);
+            let tau_v = nr2 / (eta * 2.404_825_557_695_773_f64.powi(2));
+            let e = c.target - mean;
+            c.integral += e * every as f64 * plan.dt / tau_v;
+            self.st.body_force = 8.0 * eta / nr2 * (e + c.integral);
+            c.window_sum = 0.0;
+            c.window_steps = 0;
+            if !self.st.body_force.is_finite() || mean.abs() > 10.0 * c.target.abs() + 1.0 {
+                return Err(RunError::Engine(format!(
+                    "flow controller diverged at step {}: mean velocity {mean:.4} (model) for a target of {:.4}",
+                    self.sim.step_count(),
+                    c.target
+                )));
+            }
+            self.apply_force()?;
+        }
+        Ok(())
+    }
+
+    /// Whether the current stage is steady: the last two windows' means of its measures differ
+    /// by less than the tolerance times their scales (velocities: the stage's or the run's
+    /// characteristic velocity; lengths: D0).
+    fn steady(&self) -> bool {
+        let st = self.stage();
+        if !st.until_steady {
+            return false;
+        }
+        let plan = self.plan;
+        let window_s = st.steady_window_s.unwrap_or(0.1 * st.duration_s);
+        let w = (plan.map.time_to_model(window_s) / plan.dt / plan.s.output.sample_every_steps as f64).round() as usize;
+        let w = w.max(2);
+        let cur: Vec<&Sample> = self.st.samples.iter().filter(|s| s.stage == self.st.stage).collect();
+        if cur.len() < 2 * w {
+            return false;
+        }
+        let (a, b) = (&cur[cur.len() - 2 * w..cur.len() - w], &cur[cur.len() - w..]);
+        let mean = |s: &[&Sample], f: &dyn Fn(&Sample) -> f64| s.iter().map(|x| f(x)).sum::<f64>() / s.len() as f64;
+        let u = plan.map.velocity_to_model(plan.s.characteristic_velocity()).max(1e-12);
+        let d0 = plan.map.length_to_model(plan.sys.cell_diameter_m);
+        let measures: [(&dyn Fn(&Sample) -> f64, f64); 4] = [
+            (&|s| s.cell_velocity, u),
+            (&|s| s.fluid_velocity, u),
+            (&|s| s.shape.axial_length, d0),
+            (&|s| s.shape.distance_from_rest, d0),
+        ];
+        measures
+            .iter()
+            .all(|(f, scale)| (mean(b, *f) - mean(a, *f)).abs() <= st.steady_tolerance * scale)
+    }
+
+    fn accumulate_field(&mut self) {
+        let g = self.grid;
+        let p = self.sim.particles();
+        if self.st.field_count.len() != g.len() {
+            self.st.field_count = vec![0.0; g.len()];
+            self.st.field_velocity = vec![0.0; 3 * g.len()];
+        }
+        for (i, (x, v)) in p.pos.iter().zip(&p.vel).enumerate() {
+            let t = p.ptype[i];
+            if t != OUTER && t != INNER {
+                continue;
+            }
+            let ijk = [0, 1, 2].map(|k| ((x[k] / g.spacing[k]) as usize).min(g.shape[k] - 1));
+            let b = g.index(ijk[0], ijk[1], ijk[2]);
+            self.st.field_count[b] += 1.0;
+            for k in 0..3 {
+                self.st.field_velocity[3 * b + k] += v[k];
+            }
+        }
+    }
+}
+
+impl Stepper for Run<'_> {
+    fn step_count(&self) -> u64 {
+        self.sim.step_count()
+    }
+    fn max_steps(&self) -> u64 {
+        self.plan.max_steps()
+    }
+    fn time(&self) -> f64 {
+        self.sim.time()
+    }
+    fn finished(&self) -> bool {
+        self.st.finished
+    }
+
+    fn advance(&mut self) -> Result<(), RunError> {
+        self.sim.step().map_err(step_err)?;
+        self.control()?;
+        let step = self.sim.step_count();
+        let plan = self.plan;
+        let done_in_stage = step - self.st.stage_start;
+        if step % plan.s.output.sample_every_steps == 0 {
+            let t = done_in_stage as f64 * plan.dt;
+            let smp = observe(&self.sim, &self.profile, self.st.stage, t, self.st.body_force);
+            if !(smp.shape.axial_length.is_finite() && smp.area_deviation.is_finite()) {
+                return Err(RunError::Engine(format!(
+                    "step {step}: the cell's shape is no longer finite (membrane vertices); likely cause: the time step is too large for the membrane"
+                )));
+            }
+            self.st.samples.push(smp);
+            if plan.frame_every > 0 {
+                self.accumulate_field();
+            }
+        }
+        let stage_over = done_in_stage >= plan.stage_steps[self.st.stage];
+        let steady = step % plan.s.output.sample_every_steps == 0 && self.steady();
+        if stage_over || steady {
+            self.st.stage_ends.push((done_in_stage, steady));
+            self.st.stage += 1;
+            self.st.stage_start = step;
+            if self.st.stage == plan.s.stage.len() {
+                self.st.finished = true;
+            } else {
+                self.start_stage()?;
+            }
+        }
+        Ok(())
+    }
+
+    fn frame_due(&self) -> bool {
+        let every = self.plan.frame_every;
+        every > 0 && self.sim.step_count() % every == 0
+    }
+
+    fn write_frame(&mut self) -> Result<(), RunError> {
+        let Some(w) = self.traj.as_mut() else {
+            return Ok(());
+        };
+        let cell = &self.sim.extension().1;
+        let vr = cell.vertex_range();
+        let p = self.sim.particles();
+        let smp = observe(
+            &self.sim,
+            &self.profile,
+            self.st.stage.min(self.plan.s.stage.len() - 1),
+            0.0,
+            self.st.body_force,
+        );
+        let scalars = [
+            FrameScalar {
+                name: "cell_velocity",
+                value: smp.cell_velocity,
+                quantity: Quantity::Velocity,
+            },
+            FrameScalar {
+                name: "fluid_velocity",
+                value: smp.fluid_velocity,
+                quantity: Quantity::Velocity,
+            },
+            FrameScalar {
+                name: "axial_length",
+                value: smp.shape.axial_length,
+                quantity: Quantity::Length,
+            },
+            FrameScalar {
+                name: "deformation_index",
+                value: smp.shape.deformation_index,
+                quantity: Quantity::Dimensionless,
+            },
+            FrameScalar {
+                name: "stage",
+                value: smp.stage as f64,
+                quantity: Quantity::Dimensionless,
+            },
+        ];
+        let (step, time) = (self.sim.step_count(), self.sim.time());
+        w.append_membrane_frame(step, time, cell.vertices(), Some(&p.vel[vr]), &scalars)
+            .map_err(out_err)?;
+        let g = self.grid;
+        if self.st.field_count.len() == g.len() {
+            let mut vel = vec![0.0; 3 * g.len()];
+            let mut dens = vec![0.0; g.len()];
+            let nsamples = (self.plan.frame_every / self.plan.s.output.sample_every_steps).max(1) as f64;
+            let vol = g.spacing.x * g.spacing.y * g.spacing.z;
+            for b in 0..g.len() {
+                let c = self.st.field_count[b];
+                dens[b] = c / (nsamples * vol);
+                for k in 0..3 {
+                    vel[3 * b + k] = if c > 0.0 {
+                        self.st.field_velocity[3 * b + k] / c
+                    } else {
+                        0.0
+                    };
+                }
+            }
+            w.append_field("density", step, time, &g, 1, &dens, Quantity::NumberDensity)
+                .map_err(out_err)?;
+            w.append_field("velocity", step, time, &g, 3, &vel, Quantity::Velocity)
+                .map_err(out_err)?;
+            self.st.field_count.iter_mut().for_each(|x| *x = 0.0);
+            self.st.field_velocity.iter_mut().for_each(|x| *x = 0.0);
+        }
+        Ok(())
+    }
+
+    fn flush(&mut self) -> Result<(), RunError> {
+        if let Some(w) = self.traj.as_mut() {
+            w.flush().map_err(out_err)?;
+        }
+        Ok(())
+    }
+
+    fn save_checkpoint(&mut self, ctx: &RunContext) -> Result<(), RunError> {
+        self.st.stepping_seconds += self.clock.elapsed().as_secs_f64();
+        self.clock = std::time::Instant::now();
+        let sim = &self.sim;
+        let mut ck = Checkpoint::new(sim.step_count(), sim.time(), self.plan.s.seed, self.plan.toml.clone());
+        ck.set_scalar("scenario_kind", ScalarValue::Str("capillary".into()));
+        ck.set_scalar(
+            "base_dir",
+            ScalarValue::Str(self.plan.s.base_dir.to_string_lossy().into_owned()),
+        );
+        ck.set_scalar(
+            "finished",
+            ScalarValue::Str(if self.st.finished { "yes" } else { "no" }.into()),
+        );
+        particles_into_checkpoint(&mut ck, sim.particles());
+        let (walls_ext, cell) = sim.extension();
+        crate::channel::json_into_checkpoint(&mut ck, "walls_state_json", &walls_ext.state())?;
+        crate::channel::json_into_checkpoint(&mut ck, "cell_state_json", &cell.state())?;
+        crate::channel::json_into_checkpoint(&mut ck, "progress_json", &self.st)?;
+        // the membrane's topology and reference state: the resting mesh it was built on
+        ck.insert_vec3("membrane_rest_vertices", &self.rest.vertices);
+        ck.insert_u32(
+            "membrane_triangles",
+            self.rest.triangles.iter().flatten().copied().collect(),
+        );
+        crate::channel::json_into_checkpoint(&mut ck, "mesh_info_json", &self.mesh_info)?;
+        ck.save_atomic(ctx.out_dir.join(CHECKPOINT_FILE)).map_err(out_err)
+    }
+}
+
+fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, Progress, serde_json::Value), RunError> {
+    let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
+    let kind = ck.scalar_str("scenario_kind").map_err(bad)?;
+    if kind != "capillary" {
+        return Err(RunError::Output(format!("checkpoint of a {kind} run, not capillary")));
+    }
+    let particles = particles_from_checkpoint(ck)?;
+    let verts = ck.vec3s("membrane_rest_vertices", None).map_err(bad)?;
+    let tri_flat = ck.u32s("membrane_triangles").map_err(bad)?;
+    let triangles: Vec<[u32; 3]> = tri_flat.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let rest = Mesh::new(verts, triangles)?;
+    let model = plan.model(&rest)?;
+    let vertex_density = rest.vertices.len() as f64 / rest.area();
+    let field = plan.field(vertex_density)?;
+    let first = particles
+        .ptype
+        .iter()
+        .position(|&t| t == MEMBRANE)
+        .ok_or_else(|| RunError::Output("checkpoint: no membrane vertices".into()))?;
+    let cs: CellState = crate::channel::json_from_checkpoint(ck, "cell_state_json")?;
+    let cell = Cell::new(model, plan.cell_config(first), rest.vertices.clone())
+        .and_then(|c| c.with_state(cs))
+        .map_err(engine_err)?;
+    let ws: WallsState = crate::channel::json_from_checkpoint(ck, "walls_state_json")?;
+    let domain = PeriodicBox::new(plan.box_lengths).map_err(engine_err)?;
+    let walls_ext = Walls::new(plan.shape, plan.wall_config())
+        .and_then(|w| w.with_state(ws, &domain))
+        .map_err(engine_err)?;
+    let state = SimState {
+        config: plan.config(),
+        field,
+        particles,
+        step: ck.step,
+    };
+    let mut sim = Simulation::from_state(state, (walls_ext, cell)).map_err(engine_err)?;
+    let st: Progress = crate::channel::json_from_checkpoint(ck, "progress_json")?;
+    let f = DVec3::new(0.0, 0.0, st.body_force);
+    sim.set_body_force(OUTER as usize, f).map_err(engine_err)?;
+    sim.set_body_force(INNER as usize, f).map_err(engine_err)?;
+    let info: serde_json::Value = crate::channel::json_from_checkpoint(ck, "mesh_info_json")?;
+    Ok((sim, rest, st, info))
+}
+
+// ---------------------------------------------------------------------------------------------
+// Results
+
+/// Mean of `f` over the last quarter of a stage's samples.
+fn tail_mean(samples: &[&Sample], f: impl Fn(&Sample) -> f64) -> f64 {
+    let n = samples.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    let tail = &samples[n - (n / 4).max(1)..];
+    tail.iter().map(|s| f(s)).sum::<f64>() / tail.len() as f64
+}
+
+/// Time constant of the decay of `y(t)` towards its final level (the mean of the last fifth):
+/// the first time y − y_end falls below e⁻¹ (y(0) − y_end), linearly interpolated. NaN when it
+/// does not decay.
+pub fn decay_time(t: &[f64], y: &[f64]) -> f64 {
+    let n = y.len();
+    if n < 5 {
+        return f64::NAN;
+    }
+    let tail = &y[n - (n / 5).max(1)..];
+    let end = tail.iter().sum::<f64>() / tail.len() as f64;
+    let a0 = y[0] - end;
+    if a0.abs() < 1e-12 {
+        return f64::NAN;
+    }
+    let level = a0 * (-1.0f64).exp();
+    for k in 1..n {
+        let (p, q) = (y[k - 1] - end, y[k] - end);
+        if (q / a0) <= (level / a0) {
+            let w = ((p - level) / (p - q)).clamp(0.0, 1.0);
+            return t[k - 1] + w * (t[k] - t[k - 1]) - t[0];
+        }
+    }
+    f64::NAN
+}
+
+fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
+    let plan = run.plan;
+    let m = &plan.map;
+    let (l, v, t) = (m.length_m * 1e6, m.velocity_to_si(1.0), m.time_s);
+    let cell = &run.sim.extension().1;
+    let stats = cell.stats();
+    let fluid_kbt = plan.fluid.pair.kbt;
+    let mut stages = Vec::new();
+    // time series CSV, SI
+    let mut csv = String::from(
+        "time_s,stage,stage_time_s,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio,body_force_n\n",
+    );
+    for s in &run.st.samples {
+        csv += &format!(
+            "{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
+            s.step as f64 * plan.dt * t,
+            s.stage,
+            s.stage_time * t,
+            s.cell_velocity * v,
+            s.fluid_velocity * v,
+            s.shape.axial_length * l,
+            s.shape.max_radius * l,
+            s.shape.deformation_index,
+            s.shape.concavity_depth * l,
+            s.shape.distance_from_rest * l,
+            s.area_deviation,
+            s.volume_deviation,
+            s.membrane_kbt / fluid_kbt,
+            s.body_force * m.force_unit_n(),
+        );
+    }
+    let path = ctx.out_dir.join("cell.csv");
+    std::fs::write(&path, csv).map_err(|source| RunError::Io { path, source })?;
+    for (k, st) in plan.s.stage.iter().enumerate() {
+        let smp: Vec<&Sample> = run.st.samples.iter().filter(|s| s.stage == k).collect();
+        let (steps, steady) = run.st.stage_ends.get(k).copied().unwrap_or((0, false));
+        let ts: Vec<f64> = smp.iter().map(|s| s.stage_time * t).collect();
+        let dist: Vec<f64> = smp.iter().map(|s| s.shape.distance_from_rest * l).collect();
+        let di: Vec<f64> = smp.iter().map(|s| s.shape.deformation_index).collect();
+        let (a_max, v_max) = smp.iter().fold((0.0f64, 0.0f64), |(a, b), s| {
+            (a.max(s.area_deviation.abs()), b.max(s.volume_deviation.abs()))
+        });
+        stages.push(json!({
+            "name": st.name,
+            "duration_s": steps as f64 * plan.dt * t,
+            "ended_steady": steady,
+            "drive": match st.drive() {
+                Drive::Off => json!("off"),
+                Drive::MeanVelocity(u) => json!({ "mean_velocity_m_per_s": u }),
+                Drive::PressureGradient(g) => json!({ "pressure_gradient_pa_per_m": g, "pressure_gradient_mmhg_per_mm": g / MMHG_PER_MM_IN_PA_PER_M }),
+            },
+            "final_quarter_means": {
+                "cell_velocity_m_per_s": tail_mean(&smp, |s| s.cell_velocity) * v,
+                "fluid_mean_velocity_m_per_s": tail_mean(&smp, |s| s.fluid_velocity) * v,
+                "axial_length_um": tail_mean(&smp, |s| s.shape.axial_length) * l,
+                "max_radial_extent_um": tail_mean(&smp, |s| s.shape.max_radius) * l,
+                "deformation_index": tail_mean(&smp, |s| s.shape.deformation_index),
+                "concavity_depth_um": tail_mean(&smp, |s| s.shape.concavity_depth) * l,
+                "distance_from_rest_um": tail_mean(&smp, |s| s.shape.distance_from_rest) * l,
+                "membrane_temperature_ratio": tail_mean(&smp, |s| s.membrane_kbt) / fluid_kbt,
+                "body_force_n": tail_mean(&smp, |s| s.body_force) * m.force_unit_n(),
+                "pressure_gradient_pa_per_m": m.pressure_gradient_to_si(tail_mean(&smp, |s| s.body_force) * plan.fluid.density),
+            },
+            "recovery_time_s": {
+                "distance_from_rest": decay_time(&ts, &dist),
+                "deformation_index": decay_time(&ts, &di),
+            },
+            "max_abs_area_deviation": a_max,
+            "max_abs_volume_deviation": v_max,
+        }));
+    }
+    let timers = cell.timers();
+    let secs = run.st.stepping_seconds + run.clock.elapsed().as_secs_f64();
+    let steps = run.sim.step_count() as f64;
+    Ok(json!({
+        "unit_mapping": {
+            "length_m": m.length_m, "energy_j": m.energy_j, "time_s": m.time_s,
+            "thermal_factor": m.thermal_factor, "warnings": m.warnings,
+            "timestep_s": plan.dt * t,
+        },
+        "groups_si": units::groups_si(&plan.sys),
+        "groups_model": units::groups_model(&plan.sys, m, &plan.fluid),
+        "model": {
+            "tube_radius_rc": plan.radius, "tube_length_rc": plan.length, "box_rc": plan.box_lengths.to_array(),
+            "particles": run.sim.particles().len(), "vertices": cell.vertices().len(), "timestep": plan.dt,
+        },
+        "mesh": run.mesh_info,
+        "stages": stages,
+        "crossings": {
+            "bounces": stats.bounces,
+            "checks": stats.checks,
+            "misplaced_total": stats.misplaced,
+            "misplaced_last_check": stats.misplaced_last,
+            "checked_last": stats.checked_last,
+            "note": "fluid particles found on the wrong side of the membrane by the inside test every model.crossing_check_every_steps steps (target 0)",
+        },
+        "performance": {
+            "steps": steps,
+            "stepping_seconds": secs,
+            "steps_per_second": steps / secs.max(1e-9),
+            "threads": rayon::current_num_threads(),
+            "seconds_in_bounce_back": timers.bounce_s,
+            "seconds_in_membrane_forces": timers.membrane_forces_s,
+            "seconds_in_crossing_checks": timers.checks_s,
+        },
+        "files": { "time_series": "cell.csv", "trajectory": if plan.frame_every > 0 { json!(TRAJECTORY_FILE) } else { json!(null) } },
+    }))
+}
+
+/// Model → SI units of a capillary run (for the trajectory).
+fn unit_system(plan: &Plan) -> UnitSystem {
+    plan.map.unit_system()
+}
+
+/// Runs (or, with a checkpoint, resumes) a capillary scenario.
+pub fn run_from(
+    s: &CapillaryScenario,
+    ctx: &RunContext,
+    checkpoint: Option<&Checkpoint>,
+) -> Result<serde_json::Value, RunError> {
+    let plan = Plan::new(s)?;
+    let (sim, rest, st, info) = match checkpoint {
+        Some(ck) => restore(&plan, ck)?,
+        None => {
+            let (sim, rest, info) = build(&plan)?;
+            (sim, rest, Progress::default(), info)
+        }
+    };
+    let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
+    let traj = if plan.frame_every > 0 {
+        Some(match checkpoint {
+            Some(ck) if traj_path.exists() => {
+                TrajectoryWriter::open_append(&traj_path, ck.step / plan.frame_every * plan.frame_every)
+                    .map_err(out_err)?
+            }
+            _ => {
+                let meta = RunMetadata::new("capillary", plan.toml.clone(), s.seed, unit_system(&plan)).with_extra(
+                    "particle_types",
+                    MetaValue::Str(
+                        "fields from plasma (0) and cytosol (2); membrane frames are the cell's vertices".into(),
+                    ),
+                );
+                let mut w = TrajectoryWriter::create(&traj_path, &meta).map_err(out_err)?;
+                w.write_mesh(&rest.triangles).map_err(out_err)?;
+                let cell = &sim.extension().1;
+                w.set_membrane_reference(cell.model().area0(), cell.model().volume0())
+                    .map_err(out_err)?;
+                w
+            }
+        })
+    } else {
+        None
+    };
+    let scale = 1e-6 / plan.map.length_m;
+    let profile = RestProfile::new(&EvansFung::healthy_um().scaled(scale), 400);
+    let grid = field_grid(&plan);
+    let mut run = Run {
+        plan: &plan,
+        sim,
+        rest,
+        profile,
+        st,
+        traj,
+        grid,
+        mesh_info: info,
+        clock: std::time::Instant::now(),
+    };
+    let resumed = checkpoint.is_some();
+    if !resumed {
+        run.start_stage()?;
+    }
+    for w in &plan.map.warnings {
+        if ctx.progress {
+            eprintln!("warning: {w}");
+        }
+    }
+    driver::drive(&mut run, ctx, resumed, s.output.checkpoint_every_steps)?;
+    let r = results(&run, ctx)?;
+    if let Some(w) = run.traj.take() {
+        w.close().map_err(out_err)?;
+    }
+    Ok(r)
+}
