@@ -41,6 +41,28 @@ use crate::MembraneModel;
 /// particle is put back on its side.
 const PLACEMENT_OFFSET: f64 = 1e-5;
 
+/// Mixed into the seed of the Maxwell reflections (a stream apart from the pair noise).
+const MAXWELL_SALT: u64 = 0x6d65_6d62_7261_6e65;
+
+/// A velocity relative to the wall leaving it along `n` (unit, towards the particle's side):
+/// flux-weighted Maxwell–Boltzmann of thermal speed `vth` = √(kBT/m), from the counter-based
+/// stream (`key`, particle `id`).
+fn maxwell_velocity(key: u64, id: u32, n: DVec3, vth: f64) -> DVec3 {
+    use hemodpd_engine::rng::mix64;
+    let base = key.wrapping_add((id as u64).wrapping_mul(4).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    let u = |k: u64| {
+        let h = mix64(base.wrapping_add(k.wrapping_mul(0x9E37_79B9_7F4A_7C15)));
+        ((h >> 11) as f64 + 0.5) / (1u64 << 53) as f64 // (0, 1)
+    };
+    let (u1, u2, u3) = (u(1), u(2), u(3));
+    let normal = vth * (-2.0 * u1.ln()).sqrt();
+    let r = vth * (-2.0 * u2.ln()).sqrt();
+    let phi = std::f64::consts::TAU * u3;
+    let t1 = n.any_orthonormal_vector();
+    let t2 = n.cross(t1);
+    n * normal + t1 * (r * phi.cos()) + t2 * (r * phi.sin())
+}
+
 /// Meshes with at least this many vertices use the parallel force evaluation.
 const PARALLEL_FORCES_FROM: usize = 4000;
 
@@ -56,6 +78,25 @@ pub struct WallRepulsion {
     pub strength: f64,
 }
 
+/// How a fluid particle leaves the membrane after it crossed a triangle.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MembraneReflection {
+    /// v → 2u_w − v (u_w: the velocity of the hit point): no slip, energy-conserving in the
+    /// triangle's frame. A particle caught in a sharp crease of a thermally rough membrane is
+    /// reflected back and forth between two light triangles and gains energy every step
+    /// (seen at κ/kBT ≈ 6 with vertex mass = fluid mass; docs/capillary.md).
+    BounceBack,
+    /// Diffuse (Maxwell) reflection: v → u_w + c, with c drawn from the flux-weighted
+    /// Maxwell–Boltzmann distribution of the fluid's kBT leaving the surface on the particle's
+    /// side (normal speed √(kBT/m)·√(−2 ln ξ), tangential components Gaussian of variance
+    /// kBT/m). No slip on average, and the particle leaves at the fluid's temperature, so no
+    /// energy is pumped in; momentum goes to the vertices as for bounce-back. Counter-based
+    /// random numbers of (seed, step, particle id): independent of the thread count.
+    #[default]
+    Maxwell,
+}
+
 /// Settings of a [`Cell`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CellConfig {
@@ -69,6 +110,12 @@ pub struct CellConfig {
     pub check_every: u64,
     /// Repulsion from the wall, if there is one.
     pub wall: Option<WallRepulsion>,
+    /// How fluid leaves the membrane after a crossing.
+    pub reflection: MembraneReflection,
+    /// Thermal energy kBT of the fluid (for [`MembraneReflection::Maxwell`]).
+    pub kbt: f64,
+    /// Seed of the Maxwell reflections' random numbers.
+    pub seed: u64,
 }
 
 /// Counters of a [`Cell`] (part of its checkpointed state).
@@ -404,6 +451,8 @@ impl Cell {
         let (start, items) = (&self.grid_start, &self.grid_items);
         let (pos, vel, ptype) = (&*s.pos, &*s.vel, s.ptype);
         let mass: Vec<f64> = s.field.types().iter().map(|t| t.mass).collect();
+        let (reflection, kbt, ids) = (self.config.reflection, self.config.kbt, s.id);
+        let key = hemodpd_engine::rng::step_key(self.config.seed ^ MAXWELL_SALT, s.step);
         let events: Vec<BounceEvent> = self
             .candidates
             .par_iter()
@@ -451,28 +500,42 @@ impl Cell {
                     b1: x1[t[1] as usize],
                     c1: x1[t[2] as usize],
                 };
-                let b = mesh_bounce::bounce(p0, v, mass[ptype[iu] as usize], dt, &mt)?;
+                let m = mass[ptype[iu] as usize];
+                let b = mesh_bounce::bounce(p0, v, m, dt, &mt)?;
                 // Not advanced for the rest of the step (a reflected path may meet a neighbouring
                 // triangle where the membrane is concave): put at the hit point's place on the
                 // end-of-step triangle, just off it on the side it came from.
                 let w = b.crossing.weights;
                 let end = [mt.a1, mt.b1, mt.c1];
                 let n1 = (end[1] - end[0]).cross(end[2] - end[0]);
-                let position = if n1.length_squared() > 0.0 {
-                    let scale = (end[1] - end[0]).length().max((end[2] - end[0]).length());
-                    end[0] * w[0]
-                        + end[1] * w[1]
-                        + end[2] * w[2]
-                        + n1.normalize() * (b.crossing.side * PLACEMENT_OFFSET * scale)
-                } else {
-                    b.position
+                if n1.length_squared() == 0.0 {
+                    return Some(BounceEvent {
+                        particle: i,
+                        triangle: ti,
+                        position: b.position,
+                        velocity: b.velocity,
+                        vertex_impulse: b.vertex_impulse,
+                    });
+                }
+                let n_hat = n1.normalize() * b.crossing.side;
+                let scale = (end[1] - end[0]).length().max((end[2] - end[0]).length());
+                let position = end[0] * w[0] + end[1] * w[1] + end[2] * w[2] + n_hat * (PLACEMENT_OFFSET * scale);
+                let (velocity, vertex_impulse) = match reflection {
+                    MembraneReflection::BounceBack => (b.velocity, b.vertex_impulse),
+                    MembraneReflection::Maxwell => {
+                        let u_w = (b.velocity + v) * 0.5; // bounce-back's v_new = 2u_w − v
+                        let c = maxwell_velocity(key, ids[iu], n_hat, (kbt / m).sqrt());
+                        let v_new = u_w + c;
+                        let j = (v - v_new) * m;
+                        (v_new, [j * w[0], j * w[1], j * w[2]])
+                    }
                 };
                 Some(BounceEvent {
                     particle: i,
                     triangle: ti,
                     position,
-                    velocity: b.velocity,
-                    vertex_impulse: b.vertex_impulse,
+                    velocity,
+                    vertex_impulse,
                 })
             })
             .collect();

@@ -21,12 +21,13 @@ use crate::fluid::{out_err, particles_from_checkpoint, particles_into_checkpoint
 use crate::units::{self, FluidModel, PhysicalSystem, ThermalChoice, UnitMapping, MMHG_PER_MM_IN_PA_PER_M};
 use crate::{mesh_cache, RunContext, RunError};
 use glam::DVec3;
+use hemodpd_engine::params::CAPILLARY_FLUID_WALL_SLIP;
 use hemodpd_engine::walls::{self, Reflection, WallConfig, WallSetup, WallShape, Walls, WallsState};
 use hemodpd_engine::{ForceField, PairParams, Particles, PeriodicBox, SimConfig, SimState, Simulation, TypeSpec};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{FrameScalar, GridSpec, MetaValue, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
 use hemodpd_membrane::cellshape::{self, RestProfile, ShapeMetrics};
-use hemodpd_membrane::coupling::{Cell, CellConfig, CellState, WallRepulsion};
+use hemodpd_membrane::coupling::{Cell, CellConfig, CellState, MembraneReflection, WallRepulsion};
 use hemodpd_membrane::forces::MembraneConstants;
 use hemodpd_membrane::params::ModelParams;
 use hemodpd_membrane::shape::EvansFung;
@@ -74,8 +75,25 @@ fn d_ka() -> f64 {
 fn d_kv() -> f64 {
     hemodpd_membrane::forces::DEFAULT_K_VOLUME_N_PER_M2
 }
-fn d_thermal() -> String {
-    "auto".into()
+fn d_thermal() -> ThermalSetting {
+    ThermalSetting::Word("auto".into())
+}
+
+/// `model.thermal_factor`: "auto", "exact" or a number f ≥ 1.
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(untagged)]
+pub enum ThermalSetting {
+    Factor(f64),
+    Word(String),
+}
+
+impl std::fmt::Display for ThermalSetting {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ThermalSetting::Factor(x) => write!(f, "{x}"),
+            ThermalSetting::Word(w) => write!(f, "{w:?}"),
+        }
+    }
 }
 fn d_mach() -> f64 {
     units::MACH_LIMIT
@@ -160,7 +178,7 @@ pub struct ModelSection {
     /// "auto" (default: the smallest thermal factor f ≥ 1 that keeps the Mach number at the
     /// fastest stage's velocity ≤ `max_mach`), "exact" (f = 1) or a number f ≥ 1.
     #[serde(default = "d_thermal")]
-    pub thermal_factor: String,
+    pub thermal_factor: ThermalSetting,
     /// Mach bound for "auto" (default 0.25, the largest allowed).
     #[serde(default = "d_mach")]
     pub max_mach: f64,
@@ -176,6 +194,11 @@ pub struct ModelSection {
     /// Steps between updates of the mean-velocity controller (default 50).
     #[serde(default = "d_control")]
     pub flow_control_every_steps: u64,
+    /// How fluid leaves the membrane after crossing a triangle: "maxwell" (default: diffuse,
+    /// at the fluid's temperature) or "bounce-back" (v → 2u_w − v; unstable when thermal
+    /// creases trap particles, docs/capillary.md).
+    #[serde(default)]
+    pub membrane_reflection: MembraneReflection,
 }
 
 /// One `[[stage]]` of the protocol. A stage drives the flow with at most one of the three
@@ -323,12 +346,15 @@ impl CapillaryScenario {
     }
 
     fn thermal(&self) -> ThermalChoice {
-        match self.model.thermal_factor.trim() {
-            "auto" => ThermalChoice::Auto {
-                max_mach: self.model.max_mach,
+        match &self.model.thermal_factor {
+            ThermalSetting::Factor(f) => ThermalChoice::Factor(*f),
+            ThermalSetting::Word(w) => match w.trim() {
+                "auto" => ThermalChoice::Auto {
+                    max_mach: self.model.max_mach,
+                },
+                "exact" => ThermalChoice::Exact,
+                s => ThermalChoice::Factor(s.parse().unwrap_or(f64::NAN)),
             },
-            "exact" => ThermalChoice::Exact,
-            s => ThermalChoice::Factor(s.parse().unwrap_or(f64::NAN)),
         }
     }
 
@@ -408,18 +434,16 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
         2.0,
         "0.25–2 µm per rc",
     )?;
-    match s.model.thermal_factor.trim() {
-        "auto" | "exact" => {}
-        v => match v.parse::<f64>() {
-            Ok(f) if f.is_finite() && f >= 1.0 => {}
-            _ => {
-                return Err(fail(
-                    "model.thermal_factor",
-                    format!("{v:?}"),
-                    "\"auto\", \"exact\" or a number ≥ 1",
-                ))
-            }
-        },
+    let thermal_ok = match &s.model.thermal_factor {
+        ThermalSetting::Factor(f) => f.is_finite() && *f >= 1.0,
+        ThermalSetting::Word(w) => matches!(w.trim(), "auto" | "exact"),
+    };
+    if !thermal_ok {
+        return Err(fail(
+            "model.thermal_factor",
+            s.model.thermal_factor.to_string(),
+            "\"auto\", \"exact\" or a number ≥ 1",
+        ));
     }
     range("model.max_mach", s.model.max_mach, 1e-3, units::MACH_LIMIT, "(0, 0.25]")?;
     if let Some(dt) = s.model.timestep {
@@ -501,13 +525,13 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
     }
     // the cell must fit: its diameter plus two repulsion ranges inside the tube
     let d0 = 2.0 * EvansFung::healthy_um().r;
-    let margin = 2.0 * s.model.wall_repulsion_range_rc * s.model.length_um_per_rc;
+    let margin = 2.0 * (s.model.wall_repulsion_range_rc + CAPILLARY_FLUID_WALL_SLIP) * s.model.length_um_per_rc;
     if d0 + margin >= s.tube.diameter_um {
         return Err(fail(
             "tube.diameter_um",
             format!("{}", s.tube.diameter_um),
             &format!(
-                "larger than the resting cell's diameter {d0:.2} µm plus twice the wall repulsion range ({margin:.2} µm): the biconcave cell is placed on the axis, facing the flow"
+                "larger than the resting cell's diameter {d0:.2} µm plus twice the wall repulsion range and the wall's slip length ({margin:.2} µm): the biconcave cell is placed on the axis, facing the flow"
             ),
         ));
     }
@@ -546,8 +570,11 @@ pub struct Plan<'a> {
     pub map: UnitMapping,
     pub fluid: FluidModel,
     pub dt: f64,
-    /// Tube radius and length, rc.
+    /// Tube radius (the physical one mapped) and length, rc.
     pub radius: f64,
+    /// Radius of the wall surface, rc: the effective no-slip radius of the flow is `radius`
+    /// ([`wall_radius`]).
+    pub wall_radius: f64,
     pub length: f64,
     pub box_lengths: DVec3,
     pub shape: WallShape,
@@ -565,13 +592,14 @@ impl<'a> Plan<'a> {
         let radius = map.length_to_model(0.5 * s.tube.diameter_um * 1e-6);
         let length = map.length_to_model(s.tube.length_um * 1e-6);
         let rc = fluid.pair.rc;
+        let wall_r = wall_radius(radius, CAPILLARY_FLUID_WALL_SLIP);
         // wall thickness rc plus half an rc of margin on each side
-        let side = 2.0 * (radius + 1.5 * rc);
+        let side = 2.0 * (wall_r + 1.5 * rc);
         let box_lengths = DVec3::new(side, side, length);
         let shape = WallShape::Cylinder {
             axis: AXIS,
             centre: [0.5 * side, 0.5 * side],
-            radius,
+            radius: wall_r,
         };
         let steps = |t_s: f64| (map.time_to_model(t_s) / dt).round().max(1.0) as u64;
         let stage_steps = s.stage.iter().map(|st| steps(st.duration_s)).collect();
@@ -587,6 +615,7 @@ impl<'a> Plan<'a> {
             fluid,
             dt,
             radius,
+            wall_radius: wall_r,
             length,
             box_lengths,
             shape,
@@ -741,6 +770,9 @@ impl<'a> Plan<'a> {
                 range: self.s.model.wall_repulsion_range_rc * rc,
                 strength: 4.0 * self.fluid.pair.a,
             }),
+            reflection: self.s.model.membrane_reflection,
+            kbt: self.fluid.pair.kbt,
+            seed: self.s.seed,
         }
     }
 
@@ -753,6 +785,25 @@ impl<'a> Plan<'a> {
     fn poiseuille_force(&self, u: f64) -> f64 {
         8.0 * self.fluid.viscosity * u / (self.fluid.density * self.radius * self.radius)
     }
+}
+
+/// The wall radius R_w whose flow carries the flux of a no-slip tube of radius `radius` when
+/// the fluid slips by `slip` at the wall: R_w⁴ (1 + 4b/R_w) = R⁴ (Newton; R_w ≈ R − b).
+pub fn wall_radius(radius: f64, slip: f64) -> f64 {
+    let target = radius.powi(4);
+    let mut r = radius - slip;
+    for _ in 0..20 {
+        let f = r.powi(4) + 4.0 * slip * r.powi(3) - target;
+        let df = 4.0 * r.powi(3) + 12.0 * slip * r * r;
+        r -= f / df;
+    }
+    r
+}
+
+/// Mean axial velocity of the flow over the tube's cross-section πR² (the flux over the area):
+/// the particles' mean velocity fills πR_w², so ū·(R_w/R)².
+fn flux_velocity(plan: &Plan, particle_mean: f64) -> f64 {
+    particle_mean * (plan.wall_radius / plan.radius).powi(2)
 }
 
 fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
@@ -845,7 +896,14 @@ pub struct Sample {
     pub body_force: f64,
 }
 
-fn observe(sim: &CapillarySim, rest: &RestProfile, stage: usize, stage_time: f64, body_force: f64) -> Sample {
+fn observe(
+    plan: &Plan,
+    sim: &CapillarySim,
+    rest: &RestProfile,
+    stage: usize,
+    stage_time: f64,
+    body_force: f64,
+) -> Sample {
     let cell = &sim.extension().1;
     let x = cell.vertices();
     let p = sim.particles();
@@ -870,7 +928,7 @@ fn observe(sim: &CapillarySim, rest: &RestProfile, stage: usize, stage_time: f64
         stage_time,
         shape: cellshape::metrics(x, AXIS, rest),
         cell_velocity: vmean[AXIS],
-        fluid_velocity: sum / count.max(1) as f64,
+        fluid_velocity: flux_velocity(plan, sum / count.max(1) as f64),
         area_deviation: a / model.area0() - 1.0,
         volume_deviation: vol / model.volume0() - 1.0,
         membrane_kbt,
@@ -981,7 +1039,7 @@ impl Run<'_> {
                 n += 1;
             }
         }
-        c.window_sum += sum / n.max(1) as f64;
+        c.window_sum += flux_velocity(plan, sum / n.max(1) as f64);
         c.window_steps += 1;
         if c.window_steps >= every {
             let mean = c.window_sum / c.window_steps as f64;
@@ -1079,7 +1137,7 @@ impl Stepper for Run<'_> {
         let done_in_stage = step - self.st.stage_start;
         if step % plan.s.output.sample_every_steps == 0 {
             let t = done_in_stage as f64 * plan.dt;
-            let smp = observe(&self.sim, &self.profile, self.st.stage, t, self.st.body_force);
+            let smp = observe(plan, &self.sim, &self.profile, self.st.stage, t, self.st.body_force);
             if !(smp.shape.axial_length.is_finite() && smp.area_deviation.is_finite()) {
                 return Err(RunError::Engine(format!(
                     "step {step}: the cell's shape is no longer finite (membrane vertices); likely cause: the time step is too large for the membrane"
@@ -1118,6 +1176,7 @@ impl Stepper for Run<'_> {
         let vr = cell.vertex_range();
         let p = self.sim.particles();
         let smp = observe(
+            self.plan,
             &self.sim,
             &self.profile,
             self.st.stage.min(self.plan.s.stage.len() - 1),
