@@ -162,6 +162,11 @@ enum Command {
         /// Draw the triangulation.
         #[arg(long)]
         edges: bool,
+        /// The view: "oblique" (stretching shapes) or "tube-side" (a capillary run: the tube
+        /// along z seen from the side, the flow left to right). Default: tube-side for capillary
+        /// trajectories, oblique otherwise.
+        #[arg(long)]
+        view: Option<String>,
         #[arg(short = 'o', long)]
         output: PathBuf,
     },
@@ -335,8 +340,9 @@ fn dispatch(cli: Cli) -> Result<()> {
             frames,
             columns,
             edges,
+            view,
             output,
-        } => render(&trajectory, &frames, columns, edges, &output),
+        } => render(&trajectory, &frames, columns, edges, view.as_deref(), &output),
         Command::Mesh {
             n,
             output,
@@ -521,8 +527,23 @@ fn plot(inputs: &[PathBuf], output: &Path, title: &str) -> Result<()> {
     Ok(())
 }
 
-fn render(trajectory: &Path, frames: &[usize], columns: usize, edges: bool, output: &Path) -> Result<()> {
+fn render(
+    trajectory: &Path,
+    frames: &[usize],
+    columns: usize,
+    edges: bool,
+    view: Option<&str>,
+    output: &Path,
+) -> Result<()> {
+    use hemodpd_scenario::figures::View;
     let reader = hemodpd_io::TrajectoryReader::open(trajectory)?;
+    let view = match view {
+        Some("oblique") => View::Oblique,
+        Some("tube-side") => View::TubeSide,
+        Some(other) => bail!("--view {other}: use \"oblique\" or \"tube-side\""),
+        None if reader.metadata().scenario_name == "capillary" => View::TubeSide,
+        None => View::Oblique,
+    };
     let triangles = reader.triangles()?;
     let n = reader.membrane_frames()?;
     let frames: Vec<usize> = if frames.is_empty() {
@@ -540,7 +561,7 @@ fn render(trajectory: &Path, frames: &[usize], columns: usize, edges: bool, outp
         let um: Vec<glam::DVec3> = f.positions.iter().map(|p| *p * 1e6).collect();
         let title = match &forces {
             Some(fs) => format!("{:.0} pN", fs[i] * 1e12),
-            None => format!("t = {:.4} s", f.time),
+            None => format!("t = {:.1} ms", f.time * 1e3),
         };
         data.push((title, um));
     }
@@ -552,7 +573,7 @@ fn render(trajectory: &Path, frames: &[usize], columns: usize, edges: bool, outp
             triangles: &triangles,
         })
         .collect();
-    hemodpd_scenario::figures::render_shapes(output, &shapes, columns, edges)
+    hemodpd_scenario::figures::render_shapes_view(output, &shapes, columns, edges, view)
         .map_err(|e| anyhow::anyhow!("rendering {}: {e}", output.display()))?;
     eprintln!("wrote {}", output.display());
     Ok(())
@@ -580,6 +601,19 @@ fn analyze(trajectory: &Path, out: Option<PathBuf>, plot: bool) -> Result<()> {
     });
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     analysis::write_csv(out.join("frames.csv"), &a.frames)?;
+    // a capillary run: its own measures (tube along z), as in the run's cell.csv
+    let kind = hemodpd_io::TrajectoryReader::open(trajectory)
+        .map(|r| r.metadata().scenario_name.clone())
+        .unwrap_or_default();
+    if kind == "capillary" {
+        let rows = hemodpd_scenario::capillary::analyze_trajectory(trajectory)?;
+        hemodpd_scenario::capillary::write_measures_csv(&out.join("capillary.csv"), &rows)?;
+        eprintln!(
+            "capillary measures of {} frames -> {}",
+            rows.len(),
+            out.join("capillary.csv").display()
+        );
+    }
     analysis::write_json(out.join("analysis.json"), &a)?;
     if plot {
         analysis::plot_time_series(&out, &a)?;

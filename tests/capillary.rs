@@ -80,9 +80,9 @@ fn cell_at_rest_keeps_its_shape_area_volume_and_temperature() {
 /// - The cell outruns the mean flow but not the centreline (2U): measured 1.32 U.
 /// - It elongates and its rear cups (parachute): at rest, length 2.8 µm and concavity 0.53 µm;
 ///   at 20 ms, 4.5 µm and 1.6 µm.
-/// - Its length at its velocity lies within the scatter of Hochmuth et al. (1970) at
-///   D = 10.7 µm, the nearest diameter measured (4.38–7.46 µm for 0.3–0.6 cm/s). The cell is
-///   at the short end of that band (docs/validation.md, "Capillary").
+/// - Its length lies within the scatter of Hochmuth et al. (1970) at D = 10.7 µm, the nearest
+///   diameter measured (4.38–7.46 µm for cell velocities up to 0.7 cm/s), at the short end of
+///   that band (docs/validation.md, "Capillary").
 /// - Without flow it heads back to its resting shape.
 /// - No fluid crosses the membrane.
 #[test]
@@ -323,4 +323,363 @@ measure_overhead = false
         100.0 * (u / u_si - 1.0)
     );
     assert!((u / u_si - 1.0).abs() < 0.03, "{u} vs {u_si}");
+}
+
+/// `hemodpd analyze` recomputes the run's measures from the trajectory: at the steps where a
+/// frame and a sample coincide, every shape measure, the velocities, area, volume and the
+/// membrane temperature agree with the run's `cell.csv` to round-off of the SI conversion.
+#[test]
+fn analyze_reproduces_the_run_measures() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = capillary(&[
+        "stage=[{name = \"rest\", duration_s = 0.0005}, {name = \"flow\", duration_s = 0.002, mean_velocity_m_per_s = 1e-3}]",
+        "output.frame_every_s=0.0004", // 80 steps, a multiple of the 20-step sampling
+    ]);
+    run(&s, &RunContext::new(dir.path(), 0, false)).unwrap();
+    let out = dir.path().join("analysis");
+    let st = std::process::Command::new(env!("CARGO_BIN_EXE_hemodpd"))
+        .args([
+            "analyze",
+            dir.path().join("trajectory.h5").to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let read = |p: PathBuf| -> Vec<Vec<f64>> {
+        std::fs::read_to_string(p)
+            .unwrap()
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+            .collect()
+    };
+    let frames = read(out.join("capillary.csv"));
+    let samples = read(dir.path().join("cell.csv"));
+    let dt_s = samples[1][0] - samples[0][0]; // 20 steps
+    let mut compared = 0;
+    for fr in &frames {
+        let Some(sm) = samples.iter().find(|s| (s[0] - fr[1]).abs() < 0.01 * dt_s) else {
+            continue;
+        };
+        // cell.csv: time, stage, stage_time, cell v, fluid v, length, radius, DI, concavity,
+        // distance, area, volume, temperature; capillary.csv: step, time, stage, then the same
+        // from cell v on
+        let pairs = [
+            (3, 3),
+            (4, 4),
+            (5, 5),
+            (6, 6),
+            (7, 7),
+            (8, 8),
+            (9, 9),
+            (10, 10),
+            (11, 11),
+            (12, 12),
+        ];
+        for (a, b) in pairs {
+            let (x, y) = (sm[a], fr[b]);
+            assert!(
+                (x - y).abs() <= 1e-7 * x.abs().max(y.abs()).max(1e-12),
+                "column {a}: run {x} analyze {y} at t = {}",
+                fr[1]
+            );
+        }
+        compared += 1;
+    }
+    assert!(compared >= 5, "only {compared} frames coincide with samples");
+}
+
+/// Rows (study, D µm, velocity cm/s, value) of a reference CSV in tests/data.
+fn reference(name: &str) -> Vec<(String, f64, f64, f64)> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(name);
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.starts_with("study"))
+        .filter_map(|l| {
+            let c: Vec<&str> = l.split(',').collect();
+            Some((
+                c[0].to_string(),
+                c[1].parse().ok()?,
+                c[2].parse().ok()?,
+                c[3].parse().ok()?,
+            ))
+        })
+        .collect()
+}
+
+/// Where the validation's figures go (`$HEMODPD_FIGURES_DIR`), a scratch directory, and a runner.
+fn validation_setup() -> (Option<PathBuf>, tempfile::TempDir) {
+    let figs = std::env::var_os("HEMODPD_FIGURES_DIR").map(PathBuf::from);
+    if let Some(d) = &figs {
+        std::fs::create_dir_all(d).unwrap();
+    }
+    (figs, tempfile::tempdir().unwrap())
+}
+
+fn go(work: &Path, name: &str, sets: &[&str]) -> (Value, PathBuf) {
+    let dir = work.join(name);
+    let t = std::time::Instant::now();
+    let r = run(&capillary(sets), &RunContext::new(&dir, 0, false)).unwrap();
+    eprintln!(
+        "{name}: {:.0} s, {:.0} steps/s",
+        t.elapsed().as_secs_f64(),
+        f(&r["performance"]["steps_per_second"])
+    );
+    (r, dir)
+}
+
+fn q(r: &Value, st: &str, k: &str) -> f64 {
+    f(&stage(r, st)["final_quarter_means"][k])
+}
+
+/// The validation behind docs/validation.md ("Capillary"), part 1 of 3 (all three:
+/// `scripts/validate_capillary.sh [FIG_DIR]`, about 12 minutes on 2 cores): the shipped
+/// protocol at 1 mm/s, the Fig. 3 shapes and the recovery against Hochmuth 1979. Prints the
+/// stages; writes the figures into `$HEMODPD_FIGURES_DIR` when set. Asserts what the docs
+/// state: the cell has recovered its resting shape (in its own frame) to within twice its
+/// thermal roughness 50 ms after the flow stops, and no fluid crossed the membrane.
+#[test]
+#[ignore]
+fn capillary_validation_protocol() {
+    use hemodpd_io::plot::{line_chart, Series};
+    let (figs, work) = validation_setup();
+    let work = work.path();
+
+    // the paper's protocol (the shipped file): Fig. 3 shapes and the recovery
+    let (proto, pdir) = go(work, "protocol", &["output.frame_every_s=0.001"]);
+    eprintln!("protocol: {}", serde_json::to_string_pretty(&proto["stages"]).unwrap());
+    let reader = hemodpd_io::TrajectoryReader::open(pdir.join("trajectory.h5")).unwrap();
+    let times = reader.membrane_times().unwrap();
+    let tris = reader.triangles().unwrap();
+    let drive_start = 0.002;
+    let picks = [
+        ("rest", 0.0019),
+        ("8 ms after the drive starts", drive_start + 0.008),
+        ("16 ms", drive_start + 0.016),
+        ("steady (40 ms)", drive_start + 0.0399),
+        ("10 ms after it stops", drive_start + 0.05),
+        ("50 ms after it stops", drive_start + 0.0899),
+    ];
+    let mut shapes = Vec::new();
+    for (label, t) in picks {
+        let i = (0..times.len())
+            .min_by(|&a, &b| (times[a] - t).abs().total_cmp(&(times[b] - t).abs()))
+            .unwrap();
+        let fr = reader.membrane_frame(i).unwrap();
+        shapes.push((
+            format!("{label} (t = {:.1} ms)", times[i] * 1e3),
+            fr.positions.iter().map(|p| *p * 1e6).collect::<Vec<_>>(),
+        ));
+    }
+    if let Some(d) = &figs {
+        let list: Vec<hemodpd_scenario::figures::Shape> = shapes
+            .iter()
+            .map(|(t, p)| hemodpd_scenario::figures::Shape {
+                title: t.clone(),
+                positions: p,
+                triangles: &tris,
+            })
+            .collect();
+        hemodpd_scenario::figures::render_shapes_view(
+            &d.join("capillary_fig3_shapes.png"),
+            &list,
+            3,
+            true,
+            hemodpd_scenario::figures::View::TubeSide,
+        )
+        .unwrap();
+    }
+    // recovery: DI and L/W over time against Hochmuth 1979 (normalised: (x − x_end)/(x_0 − x_end))
+    let rows: Vec<Vec<f64>> = std::fs::read_to_string(pdir.join("cell.csv"))
+        .unwrap()
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').map(|x| x.parse().unwrap()).collect())
+        .collect();
+    let rec: Vec<&Vec<f64>> = rows.iter().filter(|r| r[1] == 2.0).collect();
+    let norm = |y: Vec<f64>| {
+        let n = y.len();
+        let end = y[n - n / 5..].iter().sum::<f64>() / (n / 5) as f64;
+        let y0 = y[0];
+        y.iter().map(|v| (v - end) / (y0 - end)).collect::<Vec<f64>>()
+    };
+    let rec_t: Vec<f64> = rec.iter().map(|r| r[2]).collect();
+    let rec_d = norm(rec.iter().map(|r| r[9]).collect());
+    let hoch: Vec<(f64, f64, f64)> = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/relaxation_hochmuth1979_trbcuq.csv"),
+    )
+    .unwrap()
+    .lines()
+    .filter(|l| !l.starts_with('#') && !l.starts_with("cell"))
+    .filter_map(|l| {
+        let c: Vec<f64> = l.split(',').filter_map(|x| x.parse().ok()).collect();
+        (c.len() == 3).then(|| (c[0], c[1], c[2]))
+    })
+    .collect();
+    if let Some(d) = &figs {
+        // the DI in the tube's frame is no measure of recovery here: the recovered disc turns
+        // in the tube (docs/validation.md)
+        let mut series = vec![Series::line(
+            "this model: distance from the resting shape",
+            rec_t.iter().cloned().zip(rec_d.iter().cloned()).collect(),
+        )];
+        for cell in 1..=4 {
+            let pts: Vec<(f64, f64)> = hoch.iter().filter(|h| h.0 == cell as f64).map(|h| (h.1, h.2)).collect();
+            if pts.is_empty() {
+                continue;
+            }
+            let end = pts.last().unwrap().1;
+            let y0 = pts[0].1;
+            series.push(Series::points(
+                format!("Hochmuth 1979 cell {cell}: L/W"),
+                pts.iter().map(|(t, y)| (*t, (y - end) / (y0 - end))).collect(),
+            ));
+        }
+        line_chart(
+            d.join("capillary_recovery.png"),
+            "Shape recovery after the flow stops",
+            "time since release (s)",
+            "(x − x_end)/(x_0 − x_end)",
+            &series,
+        )
+        .unwrap();
+    }
+    let rest_d = q(&proto, "rest", "distance_from_rest_um");
+    let end_d = q(&proto, "recovery", "distance_from_rest_um");
+    eprintln!(
+        "distance from rest: at rest {rest_d:.3} µm, end of recovery {end_d:.3} µm; recovery time {}",
+        stage(&proto, "recovery")["recovery_time_s"]
+    );
+    assert!(
+        end_d < 2.0 * rest_d.max(0.125),
+        "not recovered: {end_d} µm against {rest_d} µm at rest"
+    );
+    assert_eq!(proto["crossings"]["misplaced_total"], 0);
+}
+
+/// Part 2 of the capillary validation: a sweep of mean velocities 0.2–1 mm/s at the mapping of
+/// 1 mm/s (f fixed at 31.48, so every point has the same membrane), 40 ms each; cell length and
+/// deformation index against Hochmuth 1970 (D = 9.7 and 10.7 µm) and Lanotte 2014 (10 µm).
+/// Prints the table and draws the figures; asserts only that the length grows with velocity
+/// (the comparison with the data is reported, not tuned).
+#[test]
+#[ignore]
+fn capillary_validation_velocity_sweep() {
+    use hemodpd_io::plot::{line_chart, Series};
+    let (figs, work) = validation_setup();
+    let work = work.path();
+    let mut table = Vec::new();
+    for u in [0.2e-3, 0.4e-3, 0.6e-3, 0.8e-3, 1.0e-3] {
+        let st = format!("stage=[{{name = \"rest\", duration_s = 0.001}}, {{name = \"parachute\", duration_s = 0.04, mean_velocity_m_per_s = {u}}}]");
+        let (r, _) = go(
+            work,
+            &format!("u{u}"),
+            &[&st, "model.thermal_factor=31.4815", "output.frame_every_s=0"],
+        );
+        table.push((
+            u,
+            q(&r, "parachute", "cell_velocity_m_per_s"),
+            q(&r, "parachute", "axial_length_um"),
+            q(&r, "parachute", "deformation_index"),
+        ));
+    }
+    let length_ref = reference("capillary_cell_length_vs_velocity.csv");
+    let di_ref = reference("capillary_deformation_index_vs_velocity.csv");
+    eprintln!("\n| mean U (mm/s) | cell velocity (cm/s) | length (µm) | Hochmuth 10.7 µm nearest (cm/s, µm) | DI = L/W | Lanotte 10 µm nearest (cm/s, DI) |");
+    eprintln!("|---|---|---|---|---|---|");
+    for &(u, uc, len, di) in &table {
+        let near = |rows: &[(String, f64, f64, f64)], study: &str, d: f64| {
+            rows.iter()
+                .filter(|r| r.0 == study && (r.1 - d).abs() < 0.01)
+                .min_by(|a, b| (a.2 - uc * 100.0).abs().total_cmp(&(b.2 - uc * 100.0).abs()))
+                .map(|r| (r.2, r.3))
+                .unwrap_or((f64::NAN, f64::NAN))
+        };
+        let (hv, hl) = near(&length_ref, "Hochmuth1970", 10.7);
+        let (lv, ld) = near(&di_ref, "Lanotte2014", 10.0);
+        eprintln!(
+            "| {:.1} | {:.4} | {len:.2} | {hv:.3}, {hl:.2} | {di:.3} | {lv:.3}, {ld:.3} |",
+            u * 1e3,
+            uc * 100.0
+        );
+    }
+    if let Some(d) = &figs {
+        let mut s1 = vec![Series::line_with_points(
+            "this model (10 µm)",
+            table.iter().map(|t| (t.1 * 100.0, t.2)).collect(),
+        )];
+        for dd in [9.7, 10.7] {
+            s1.push(Series::points(
+                format!("Hochmuth 1970, D = {dd} µm"),
+                length_ref
+                    .iter()
+                    .filter(|r| r.0 == "Hochmuth1970" && (r.1 - dd).abs() < 0.01)
+                    .map(|r| (r.2, r.3))
+                    .collect(),
+            ));
+        }
+        line_chart(
+            d.join("capillary_length_vs_velocity.png"),
+            "Cell length in a 10 µm tube",
+            "cell velocity (cm/s)",
+            "axial length (µm)",
+            &s1,
+        )
+        .unwrap();
+        let s2 = vec![
+            Series::line_with_points(
+                "this model: length/width",
+                table.iter().map(|t| (t.1 * 100.0, t.3)).collect(),
+            ),
+            Series::points(
+                "Lanotte 2014, D = 10 µm",
+                di_ref
+                    .iter()
+                    .filter(|r| r.0 == "Lanotte2014")
+                    .map(|r| (r.2, r.3))
+                    .collect(),
+            ),
+        ];
+        line_chart(
+            d.join("capillary_di_vs_velocity.png"),
+            "Deformation index in a 10 µm tube",
+            "cell velocity (cm/s)",
+            "DI",
+            &s2,
+        )
+        .unwrap();
+    }
+    assert!(
+        table.windows(2).all(|w| w[1].2 > w[0].2 - 0.2),
+        "length not growing with velocity: {table:?}"
+    );
+    assert!(table[table.len() - 1].2 > table[0].2);
+}
+
+/// Part 3 of the capillary validation: N = 500 and N = 5000 give steady cell velocity and length
+/// within 5 % of each other, at 0.3 mm/s (at 1 mm/s the thermal factor f = 31 lets N = 5000's
+/// short links reach Lmax, docs/capillary.md).
+#[test]
+#[ignore]
+fn capillary_validation_resolution() {
+    let (_figs, work) = validation_setup();
+    let work = work.path();
+    let st = "stage=[{name = \"rest\", duration_s = 0.001}, {name = \"parachute\", duration_s = 0.04, mean_velocity_m_per_s = 3e-4}]";
+    let (a, _) = go(work, "n500", &[st, "output.frame_every_s=0"]);
+    let (b, _) = go(work, "n5000", &[st, "output.frame_every_s=0", "cell.vertices=5000"]);
+    let (va, vb) = (
+        q(&a, "parachute", "cell_velocity_m_per_s"),
+        q(&b, "parachute", "cell_velocity_m_per_s"),
+    );
+    let (la, lb) = (
+        q(&a, "parachute", "axial_length_um"),
+        q(&b, "parachute", "axial_length_um"),
+    );
+    eprintln!("N = 500: cell velocity {va:.4e} m/s, length {la:.3} µm; N = 5000: {vb:.4e} m/s, {lb:.3} µm ({:+.1} %, {:+.1} %)", 100.0 * (vb / va - 1.0), 100.0 * (lb / la - 1.0));
+    eprintln!("N = 5000 performance: {}", b["performance"]);
+    assert!((vb / va - 1.0).abs() < 0.05, "velocity N=500 {va} N=5000 {vb}");
+    assert!((lb / la - 1.0).abs() < 0.05, "length N=500 {la} N=5000 {lb}");
 }

@@ -55,7 +55,7 @@ pub use domain::PeriodicBox;
 pub use error::EngineError;
 pub use params::{ForceField, ForceScheme, PairParams, SimConfig, TypeSpec};
 pub use particles::{Particles, SimState, StateMut};
-pub use sim::{Extension, Simulation};
+pub use sim::{Extension, Simulation, Timed};
 pub use walls::{ControlLaw, Reflection, WallConfig, WallShape, Walls, WallsState};
 
 /// Convenience alias.

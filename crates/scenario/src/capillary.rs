@@ -23,7 +23,9 @@ use crate::{mesh_cache, RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::params::CAPILLARY_FLUID_WALL_SLIP;
 use hemodpd_engine::walls::{self, Reflection, WallConfig, WallSetup, WallShape, Walls, WallsState};
-use hemodpd_engine::{ForceField, PairParams, Particles, PeriodicBox, SimConfig, SimState, Simulation, TypeSpec};
+use hemodpd_engine::{
+    ForceField, PairParams, Particles, PeriodicBox, SimConfig, SimState, Simulation, Timed, TypeSpec,
+};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{FrameScalar, GridSpec, MetaValue, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
 use hemodpd_membrane::cellshape::{self, RestProfile, ShapeMetrics};
@@ -834,7 +836,7 @@ fn step_err(e: hemodpd_engine::EngineError) -> RunError {
 }
 
 /// The simulation of a capillary run.
-pub type CapillarySim = Simulation<(Walls, Cell)>;
+pub type CapillarySim = Simulation<(Timed<Walls>, Cell)>;
 
 /// Builds the simulation at step 0.
 fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunError> {
@@ -868,7 +870,7 @@ fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunErro
     }
     let walls_ext = Walls::new(plan.shape, plan.wall_config()).map_err(engine_err)?;
     let cell = Cell::new(model, plan.cell_config(first), rest.vertices.clone()).map_err(engine_err)?;
-    let sim = Simulation::with_extension(config, field, p, (walls_ext, cell)).map_err(step_err)?;
+    let sim = Simulation::with_extension(config, field, p, (Timed::new(walls_ext), cell)).map_err(step_err)?;
     Ok((sim, rest, info))
 }
 
@@ -989,6 +991,11 @@ pub struct Run<'a> {
     grid: GridSpec,
     mesh_info: serde_json::Value,
     clock: std::time::Instant,
+    /// This session (since the run started or resumed): its first step, its start, and the
+    /// seconds spent sampling and writing frames.
+    session_step0: u64,
+    session_t0: std::time::Instant,
+    output_s: f64,
 }
 
 impl Run<'_> {
@@ -1136,6 +1143,7 @@ impl Stepper for Run<'_> {
         let plan = self.plan;
         let done_in_stage = step - self.st.stage_start;
         if step % plan.s.output.sample_every_steps == 0 {
+            let t_obs = std::time::Instant::now();
             let t = done_in_stage as f64 * plan.dt;
             let smp = observe(plan, &self.sim, &self.profile, self.st.stage, t, self.st.body_force);
             if !(smp.shape.axial_length.is_finite() && smp.area_deviation.is_finite()) {
@@ -1147,6 +1155,7 @@ impl Stepper for Run<'_> {
             if plan.frame_every > 0 {
                 self.accumulate_field();
             }
+            self.output_s += t_obs.elapsed().as_secs_f64();
         }
         let stage_over = done_in_stage >= plan.stage_steps[self.st.stage];
         let steady = step % plan.s.output.sample_every_steps == 0 && self.steady();
@@ -1169,6 +1178,26 @@ impl Stepper for Run<'_> {
     }
 
     fn write_frame(&mut self) -> Result<(), RunError> {
+        let t0 = std::time::Instant::now();
+        let r = self.write_frame_inner();
+        self.output_s += t0.elapsed().as_secs_f64();
+        r
+    }
+
+    fn flush(&mut self) -> Result<(), RunError> {
+        if let Some(w) = self.traj.as_mut() {
+            w.flush().map_err(out_err)?;
+        }
+        Ok(())
+    }
+
+    fn save_checkpoint(&mut self, ctx: &RunContext) -> Result<(), RunError> {
+        self.save(ctx)
+    }
+}
+
+impl Run<'_> {
+    fn write_frame_inner(&mut self) -> Result<(), RunError> {
         let Some(w) = self.traj.as_mut() else {
             return Ok(());
         };
@@ -1240,14 +1269,7 @@ impl Stepper for Run<'_> {
         Ok(())
     }
 
-    fn flush(&mut self) -> Result<(), RunError> {
-        if let Some(w) = self.traj.as_mut() {
-            w.flush().map_err(out_err)?;
-        }
-        Ok(())
-    }
-
-    fn save_checkpoint(&mut self, ctx: &RunContext) -> Result<(), RunError> {
+    fn save(&mut self, ctx: &RunContext) -> Result<(), RunError> {
         self.st.stepping_seconds += self.clock.elapsed().as_secs_f64();
         self.clock = std::time::Instant::now();
         let sim = &self.sim;
@@ -1263,7 +1285,7 @@ impl Stepper for Run<'_> {
         );
         particles_into_checkpoint(&mut ck, sim.particles());
         let (walls_ext, cell) = sim.extension();
-        crate::channel::json_into_checkpoint(&mut ck, "walls_state_json", &walls_ext.state())?;
+        crate::channel::json_into_checkpoint(&mut ck, "walls_state_json", &walls_ext.inner.state())?;
         crate::channel::json_into_checkpoint(&mut ck, "cell_state_json", &cell.state())?;
         crate::channel::json_into_checkpoint(&mut ck, "progress_json", &self.st)?;
         // the membrane's topology and reference state: the resting mesh it was built on
@@ -1311,7 +1333,7 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, Progress
         particles,
         step: ck.step,
     };
-    let mut sim = Simulation::from_state(state, (walls_ext, cell)).map_err(engine_err)?;
+    let mut sim = Simulation::from_state(state, (Timed::new(walls_ext), cell)).map_err(engine_err)?;
     let st: Progress = crate::channel::json_from_checkpoint(ck, "progress_json")?;
     let f = DVec3::new(0.0, 0.0, st.body_force);
     sim.set_body_force(OUTER as usize, f).map_err(engine_err)?;
@@ -1432,6 +1454,10 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let timers = cell.timers();
     let secs = run.st.stepping_seconds + run.clock.elapsed().as_secs_f64();
     let steps = run.sim.step_count() as f64;
+    let session_s = run.session_t0.elapsed().as_secs_f64().max(1e-9);
+    let session_steps = (run.sim.step_count() - run.session_step0) as f64;
+    let walls_s = run.sim.extension().0.seconds;
+    let known = timers.bounce_s + timers.membrane_forces_s + timers.checks_s + walls_s + run.output_s;
     Ok(json!({
         "unit_mapping": {
             "length_m": m.length_m, "energy_j": m.energy_j, "time_s": m.time_s,
@@ -1459,9 +1485,20 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             "stepping_seconds": secs,
             "steps_per_second": steps / secs.max(1e-9),
             "threads": rayon::current_num_threads(),
-            "seconds_in_bounce_back": timers.bounce_s,
-            "seconds_in_membrane_forces": timers.membrane_forces_s,
-            "seconds_in_crossing_checks": timers.checks_s,
+            "this_session": {
+                "steps": session_steps,
+                "seconds": session_s,
+                "steps_per_second": session_steps / session_s,
+                "share": {
+                    "fluid_pairs_and_integration": (session_s - known) / session_s,
+                    "bounce_back": timers.bounce_s / session_s,
+                    "membrane_forces": timers.membrane_forces_s / session_s,
+                    "walls": walls_s / session_s,
+                    "crossing_checks": timers.checks_s / session_s,
+                    "sampling_and_frames": run.output_s / session_s,
+                },
+                "note": "shares of this session's wall time (since the run started or resumed); the fluid's pair forces, the integrator and the cell lists are the remainder",
+            },
         },
         "files": { "time_series": "cell.csv", "trajectory": if plan.frame_every > 0 { json!(TRAJECTORY_FILE) } else { json!(null) } },
     }))
@@ -1524,7 +1561,11 @@ pub fn run_from(
         grid,
         mesh_info: info,
         clock: std::time::Instant::now(),
+        session_step0: 0,
+        session_t0: std::time::Instant::now(),
+        output_s: 0.0,
     };
+    run.session_step0 = run.sim.step_count();
     let resumed = checkpoint.is_some();
     if !resumed {
         run.start_stage()?;
@@ -1540,4 +1581,109 @@ pub fn run_from(
         w.close().map_err(out_err)?;
     }
     Ok(r)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Analysis of a trajectory after the run
+
+/// The capillary measures of one trajectory frame, SI (µm for lengths), as `hemodpd analyze`
+/// writes them (`capillary.csv`, the columns of the run's `cell.csv`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FrameMeasures {
+    pub step: u64,
+    pub time_s: f64,
+    pub stage: f64,
+    pub cell_velocity_m_per_s: f64,
+    pub fluid_velocity_m_per_s: f64,
+    pub axial_length_um: f64,
+    pub max_radius_um: f64,
+    pub deformation_index: f64,
+    pub concavity_depth_um: f64,
+    pub distance_from_rest_um: f64,
+    pub area_deviation: f64,
+    pub volume_deviation: f64,
+    pub membrane_temperature_ratio: f64,
+}
+
+/// Computes [`FrameMeasures`] for every membrane frame of a capillary trajectory (the same
+/// definitions as the run's time series: [`cellshape`], the tube along z).
+pub fn analyze_trajectory(path: &std::path::Path) -> Result<Vec<FrameMeasures>, RunError> {
+    use hemodpd_io::TrajectoryReader;
+    let r = TrajectoryReader::open(path).map_err(out_err)?;
+    let meta = r.metadata();
+    if meta.scenario_name != "capillary" {
+        return Err(RunError::Output(format!(
+            "{}: a {} trajectory, not a capillary one",
+            path.display(),
+            meta.scenario_name
+        )));
+    }
+    let units = meta.units.clone();
+    let triangles = r.triangles().map_err(out_err)?;
+    let reference = r.membrane_reference().map_err(out_err)?;
+    let profile = RestProfile::new(&EvansFung::healthy_um(), 400);
+    let scalar = |name: &str| r.membrane_scalar(name).unwrap_or_default();
+    let (fluid_v, stage) = (scalar("fluid_velocity"), scalar("stage"));
+    let mut out = Vec::new();
+    for i in 0..r.membrane_frames().map_err(out_err)? {
+        let fr = r.membrane_frame(i).map_err(out_err)?;
+        let x_um: Vec<DVec3> = fr.positions.iter().map(|p| *p * 1e6).collect();
+        let m = cellshape::metrics(&x_um, AXIS, &profile);
+        let mesh = Mesh::new(fr.positions.clone(), triangles.clone())?;
+        let (a, v) = (mesh.area(), mesh.volume());
+        let (a0, v0) = reference.unwrap_or((a, v));
+        let (uc, kbt) = match &fr.velocities {
+            Some(vel) => {
+                let n = vel.len() as f64;
+                let mean = vel.iter().fold(DVec3::ZERO, |s, v| s + *v) / n;
+                let kin: f64 = vel.iter().map(|v| (*v - mean).length_squared()).sum();
+                // vertex mass = one model mass unit; the fluid's kBT = one model energy unit
+                (mean[AXIS], units.mass_kg() * kin / (3.0 * (n - 1.0)) / units.energy_j)
+            }
+            None => (f64::NAN, f64::NAN),
+        };
+        out.push(FrameMeasures {
+            step: fr.step,
+            time_s: fr.time,
+            stage: stage.get(i).copied().unwrap_or(f64::NAN),
+            cell_velocity_m_per_s: uc,
+            fluid_velocity_m_per_s: fluid_v.get(i).copied().unwrap_or(f64::NAN),
+            axial_length_um: m.axial_length,
+            max_radius_um: m.max_radius,
+            deformation_index: m.deformation_index,
+            concavity_depth_um: m.concavity_depth,
+            distance_from_rest_um: m.distance_from_rest,
+            area_deviation: a / a0 - 1.0,
+            volume_deviation: v / v0 - 1.0,
+            membrane_temperature_ratio: kbt,
+        });
+    }
+    Ok(out)
+}
+
+/// Writes [`FrameMeasures`] as CSV.
+pub fn write_measures_csv(path: &std::path::Path, rows: &[FrameMeasures]) -> Result<(), RunError> {
+    let mut s = String::from("step,time_s,stage,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio\n");
+    for r in rows {
+        s += &format!(
+            "{},{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
+            r.step,
+            r.time_s,
+            r.stage,
+            r.cell_velocity_m_per_s,
+            r.fluid_velocity_m_per_s,
+            r.axial_length_um,
+            r.max_radius_um,
+            r.deformation_index,
+            r.concavity_depth_um,
+            r.distance_from_rest_um,
+            r.area_deviation,
+            r.volume_deviation,
+            r.membrane_temperature_ratio
+        );
+    }
+    std::fs::write(path, s).map_err(|source| RunError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }

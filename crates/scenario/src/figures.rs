@@ -94,25 +94,62 @@ pub struct Shape<'a> {
     pub triangles: &'a [[u32; 3]],
 }
 
+/// How shapes are viewed: each maps a point (relative to the shape's centroid) to (screen x,
+/// screen y, depth towards the viewer).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum View {
+    /// 60° from the stretch axis' normal plane (the stretching shapes).
+    Oblique,
+    /// A tube along z seen from the side, 20° from above: the flow runs left to right.
+    TubeSide,
+}
+
+impl View {
+    fn project(self, p: DVec3) -> DVec3 {
+        match self {
+            View::Oblique => {
+                let (s, c) = 60f64.to_radians().sin_cos();
+                DVec3::new(p.x, p.y * c - p.z * s, p.y * s + p.z * c)
+            }
+            View::TubeSide => {
+                let (s, c) = 20f64.to_radians().sin_cos();
+                DVec3::new(p.z, p.x * c - p.y * s, p.x * s + p.y * c)
+            }
+        }
+    }
+}
+
 /// Renders shapes in a grid (`columns` per row), all at one scale, viewed obliquely (60° from
 /// the stretch axis' normal plane) with Lambert shading and the triangulation drawn.
 pub fn render_shapes(path: &Path, shapes: &[Shape], columns: usize, draw_edges: bool) -> Result<(), String> {
+    render_shapes_view(path, shapes, columns, draw_edges, View::Oblique)
+}
+
+/// As [`render_shapes`], with the given [`View`].
+pub fn render_shapes_view(
+    path: &Path,
+    shapes: &[Shape],
+    columns: usize,
+    draw_edges: bool,
+    view_kind: View,
+) -> Result<(), String> {
     let columns = columns.max(1);
     let rows = shapes.len().div_ceil(columns).max(1);
     let (pw, ph) = (420u32, 300u32);
     let root = BitMapBackend::new(path, (pw * columns as u32, ph * rows as u32)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let panels = root.split_evenly((rows, columns));
-    // view: rotate about x so the viewer looks down at the cell's face from 30° above its plane
-    let tilt = 60f64.to_radians();
-    let (s, c) = tilt.sin_cos();
-    let view = |p: DVec3| DVec3::new(p.x, p.y * c - p.z * s, p.y * s + p.z * c); // (screen x, screen y, depth)
+    let view = |p: DVec3| view_kind.project(p); // (screen x, screen y, depth)
     let light = DVec3::new(-0.3, 0.5, 1.0).normalize();
+    // one scale for all: the largest extent of any shape about its own centroid
     let extent = shapes
         .iter()
-        .flat_map(|sh| sh.positions.iter())
+        .flat_map(|sh| {
+            let c = sh.positions.iter().copied().sum::<DVec3>() / sh.positions.len().max(1) as f64;
+            sh.positions.iter().map(move |p| *p - c)
+        })
         .map(|p| p.x.abs().max(p.y.abs()).max(p.z.abs()))
-        .fold(1.0, f64::max);
+        .fold(1e-12, f64::max);
     let scale = 0.46 * pw as f64 / extent;
     for (shape, panel) in shapes.iter().zip(panels.iter()) {
         let centre = shape.positions.iter().copied().sum::<DVec3>() / shape.positions.len().max(1) as f64;

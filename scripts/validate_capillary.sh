@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# The capillary validation (docs/validation.md, "Capillary"): the paper's protocol at 1 mm/s with
+# the Fig. 3 shapes and the recovery against Hochmuth 1979, a sweep of velocities against
+# Hochmuth 1970 (cell length) and Lanotte 2014 (deformation index), and N = 500 against
+# N = 5000 (three ignored tests in tests/capillary.rs). About 12 minutes on 2 cores. Figures go to FIG_DIR (default: a temporary directory).
+#   scripts/validate_capillary.sh [FIG_DIR]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+fig_dir="${1:-$(mktemp -d)}"
+mkdir -p "$fig_dir"
+HEMODPD_FIGURES_DIR="$(cd "$fig_dir" && pwd)" \
+    cargo test --profile test --test capillary -- --ignored --nocapture --test-threads 1 capillary_validation
+echo "figures in $fig_dir"
