@@ -178,6 +178,8 @@ pub struct Cell {
     candidates: Vec<u32>,
     grid_start: Vec<u32>,
     grid_items: Vec<u32>,
+    /// Swept bounding box of each triangle over the step being taken.
+    tri_boxes: Vec<(DVec3, DVec3)>,
 }
 
 /// Bounding box of a set of points.
@@ -281,6 +283,7 @@ impl Cell {
             candidates: Vec::new(),
             grid_start: Vec::new(),
             grid_items: Vec::new(),
+            tri_boxes: Vec::new(),
         })
     }
 
@@ -417,8 +420,9 @@ impl Cell {
             let q = [0, 1, 2].map(|k| x1[t[k] as usize]);
             bounds(p.iter().chain(q.iter()))
         };
-        for t in tris {
-            let (a, b) = swept(t);
+        self.tri_boxes.clear();
+        self.tri_boxes.extend(tris.iter().map(swept));
+        for &(a, b) in &self.tri_boxes {
             let r = grid.range(a, b);
             for k in r[2].0..=r[2].1 {
                 for j in r[1].0..=r[1].1 {
@@ -434,8 +438,7 @@ impl Cell {
         self.grid_items.clear();
         self.grid_items.resize(self.grid_start[grid.len()] as usize, 0);
         let mut fill: Vec<u32> = self.grid_start[..grid.len()].to_vec();
-        for (ti, t) in tris.iter().enumerate() {
-            let (a, b) = swept(t);
+        for (ti, &(a, b)) in self.tri_boxes.iter().enumerate() {
             let r = grid.range(a, b);
             for k in r[2].0..=r[2].1 {
                 for j in r[1].0..=r[1].1 {
@@ -448,7 +451,7 @@ impl Cell {
             }
         }
         // 3. the earliest crossing of each candidate, in parallel; applied in particle order
-        let (start, items) = (&self.grid_start, &self.grid_items);
+        let (start, items, boxes) = (&self.grid_start, &self.grid_items, &self.tri_boxes);
         let (pos, vel, ptype) = (&*s.pos, &*s.vel, s.ptype);
         let mass: Vec<f64> = s.field.types().iter().map(|t| t.mass).collect();
         let (reflection, kbt, ids) = (self.config.reflection, self.config.kbt, s.id);
@@ -462,7 +465,8 @@ impl Cell {
                 let p1 = centre + domain.min_image(pos[iu], centre);
                 let v = vel[iu];
                 let p0 = p1 - v * dt;
-                let r = grid.range(p0.min(p1), p0.max(p1));
+                let (plo, phi) = (p0.min(p1), p0.max(p1));
+                let r = grid.range(plo, phi);
                 let mut best: Option<(f64, u32)> = None;
                 for k in r[2].0..=r[2].1 {
                     for j in r[1].0..=r[1].1 {
@@ -470,6 +474,12 @@ impl Cell {
                             let c = grid.index(ii, j, k);
                             for &ti in &items[start[c] as usize..start[c + 1] as usize] {
                                 if best.is_some_and(|b| b.1 == ti) {
+                                    continue;
+                                }
+                                // the segment's box must meet the triangle's swept box (a
+                                // crossing point lies in both); most pairs end here
+                                let (blo, bhi) = boxes[ti as usize];
+                                if plo.cmpgt(bhi).any() || phi.cmplt(blo).any() {
                                     continue;
                                 }
                                 let t = &tris[ti as usize];
