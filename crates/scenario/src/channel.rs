@@ -15,8 +15,11 @@
 //! adaptation ends. Frames go to `trajectory.h5` every
 //! `output.trajectory_every_steps` steps; `checkpoint.h5` (particles, the wall state and the
 //! sums sampled so far) is written every `output.checkpoint_every_steps` steps, at the end and on
-//! Ctrl-C, and `hemodpd run --resume DIR` continues bit-identically.
+//! Ctrl-C, and `hemodpd run --resume DIR` continues bit-identically. The stepping loop is
+//! [`crate::driver`]'s; the phase changes happen at the step boundaries
+//! ([`Stepper::at_boundary`]), the sampling and flow control after each step.
 
+use crate::driver::{self, Stepper};
 use crate::file::{
     CouetteScenario, FluidSection, InitialWallForce, TubeScenario, WallOutput, WallRunSection, WallsSection,
 };
@@ -30,7 +33,6 @@ use hemodpd_io::{RunMetadata, TrajectoryWriter};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::path::Path;
-use std::sync::atomic::Ordering;
 use std::time::Instant;
 
 /// Blocks the sampled steps are split into; the standard errors of the fitted viscosity and of
@@ -662,14 +664,109 @@ fn control_flow(plan: &Plan, sim: &mut Simulation<Walls>, c: &mut FlowControl, s
     Ok(())
 }
 
+/// A running wall scenario (the [`Stepper`] of [`driver::drive`]): the phases of the schedule
+/// (adaptation, flow development, sampling), the sampling and the flow controller.
+struct Run<'a> {
+    plan: &'a Plan<'a>,
+    /// Where the force profile is written when adaptation ends.
+    ctx: &'a RunContext,
+    sim: Simulation<Walls>,
+    m: Measurement,
+    /// Where the initial force profile came from (for the summary).
+    source: String,
+    traj: Option<TrajectoryWriter>,
+    /// Stepping time since the start of this session or the last checkpoint.
+    clock: Instant,
+}
+
+impl Stepper for Run<'_> {
+    fn step_count(&self) -> u64 {
+        self.sim.step_count()
+    }
+    fn max_steps(&self) -> u64 {
+        self.plan.total()
+    }
+    fn time(&self) -> f64 {
+        self.sim.time()
+    }
+    fn finished(&self) -> bool {
+        self.sim.step_count() >= self.plan.total()
+    }
+
+    /// Phase changes at their boundaries; each is idempotent, so a run resumed at a phase
+    /// boundary repeats it harmlessly.
+    fn at_boundary(&mut self) -> Result<(), RunError> {
+        let plan = self.plan;
+        let step = self.sim.step_count();
+        let adapt_end = plan.adapt_steps();
+        if step == 0 && adapt_end > 0 {
+            self.sim.extension_mut().set_adapt(true);
+        }
+        if step == adapt_end {
+            if adapt_end > 0 {
+                self.sim.extension_mut().set_adapt(false);
+            }
+            write_force_files(plan, &self.sim, self.ctx)?;
+        }
+        if step == plan.sampling_start() {
+            self.sim.extension_mut().reset_measurements();
+        }
+        Ok(())
+    }
+
+    fn advance(&mut self) -> Result<(), RunError> {
+        let plan = self.plan;
+        let sample_start = plan.sampling_start();
+        let step = self.sim.step_count();
+        self.sim.step().map_err(engine_err)?;
+        if step >= sample_start {
+            sample(plan, &self.sim, &mut self.m, step - sample_start);
+        }
+        let step = step + 1;
+        if let Some(c) = self.m.flow_control.as_mut() {
+            if step > sample_start {
+                // the force the step just done was driven by
+                c.sampling_force_sum += self.sim.field().types()[walls::FLUID_TYPE as usize].body_force.z;
+                c.sampling_steps += 1;
+            }
+            control_flow(plan, &mut self.sim, c, step)?;
+        }
+        Ok(())
+    }
+
+    fn frame_due(&self) -> bool {
+        self.plan.frame_due(self.sim.step_count())
+    }
+
+    fn write_frame(&mut self) -> Result<(), RunError> {
+        match self.traj.as_mut() {
+            Some(w) => write_frame(self.plan, w, &self.sim),
+            None => Ok(()),
+        }
+    }
+
+    fn flush(&mut self) -> Result<(), RunError> {
+        match self.traj.as_mut() {
+            Some(w) => w.flush().map_err(out_err),
+            None => Ok(()),
+        }
+    }
+
+    fn save_checkpoint(&mut self, ctx: &RunContext) -> Result<(), RunError> {
+        self.m.stepping_seconds += self.clock.elapsed().as_secs_f64();
+        self.clock = Instant::now();
+        save_checkpoint(self.plan, ctx, &self.sim, &self.m, &self.source)
+    }
+}
+
 /// Runs the schedule from step 0 or from a checkpoint; returns the simulation after the last
 /// step, the sampled sums and the force-profile source.
-fn drive(
+fn run_plan(
     plan: &Plan,
     ctx: &RunContext,
     checkpoint: Option<&Checkpoint>,
 ) -> Result<(Simulation<Walls>, Measurement, String), RunError> {
-    let (mut sim, mut m, source) = match checkpoint {
+    let (sim, m, source) = match checkpoint {
         Some(ck) => restore(plan, ck)?,
         None => {
             let (sim, source) = build(plan)?;
@@ -699,7 +796,7 @@ fn drive(
             (sim, m, source)
         }
     };
-    let (adapt_end, sample_start, total) = (plan.adapt_steps(), plan.sampling_start(), plan.total());
+    let total = plan.total();
     let start = sim.step_count();
     if start > total {
         return Err(RunError::Output(format!(
@@ -709,7 +806,7 @@ fn drive(
     let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
     let every = plan.output.trajectory_every_steps;
     // frames are due at multiples of `every` (none when it is 0)
-    let mut traj = match start.checked_div(every) {
+    let traj = match start.checked_div(every) {
         None => None,
         Some(scheduled) => Some(match checkpoint {
             // keep the frames up to the checkpoint; drop an off-schedule final frame of an interrupt
@@ -726,80 +823,20 @@ fn drive(
             }
         }),
     };
-    let mut progress = ctx.progress(total, start);
-    let report_every = (total / 200).max(1);
-    let mut clock = Instant::now();
-    let mut step = start;
-    loop {
-        // `step` steps are done. Phase changes first (each is idempotent, so a run resumed at
-        // a phase boundary repeats it harmlessly), then frames, checkpoints and interrupts.
-        if step == 0 && adapt_end > 0 {
-            sim.extension_mut().set_adapt(true);
-        }
-        if step == adapt_end {
-            if adapt_end > 0 {
-                sim.extension_mut().set_adapt(false);
-            }
-            write_force_files(plan, &sim, ctx)?;
-        }
-        if step == sample_start {
-            sim.extension_mut().reset_measurements();
-        }
-        if step > start || checkpoint.is_none() {
-            if let Some(w) = traj.as_mut() {
-                if plan.frame_due(step) {
-                    write_frame(plan, w, &sim)?;
-                }
-            }
-            let ck_every = plan.output.checkpoint_every_steps;
-            if ck_every > 0 && step > start && step % ck_every == 0 && step < total {
-                m.stepping_seconds += clock.elapsed().as_secs_f64();
-                clock = Instant::now();
-                save_checkpoint(plan, ctx, &sim, &m, &source)?;
-            }
-        }
-        if step == total {
-            break;
-        }
-        if crate::INTERRUPTED.load(Ordering::Relaxed) || ctx.stop_at_step == Some(step) {
-            if let Some(w) = traj.as_mut() {
-                if !plan.frame_due(step) {
-                    write_frame(plan, w, &sim)?; // the final frame; dropped again on resume
-                }
-                w.flush().map_err(out_err)?;
-            }
-            m.stepping_seconds += clock.elapsed().as_secs_f64();
-            save_checkpoint(plan, ctx, &sim, &m, &source)?;
-            progress.finish(step, sim.time());
-            return Err(RunError::Interrupted {
-                step,
-                dir: ctx.out_dir.clone(),
-            });
-        }
-        sim.step().map_err(engine_err)?;
-        if step >= sample_start {
-            sample(plan, &sim, &mut m, step - sample_start);
-        }
-        step += 1;
-        if let Some(c) = m.flow_control.as_mut() {
-            if step > sample_start {
-                // the force the step just done was driven by
-                c.sampling_force_sum += sim.field().types()[walls::FLUID_TYPE as usize].body_force.z;
-                c.sampling_steps += 1;
-            }
-            control_flow(plan, &mut sim, c, step)?;
-        }
-        if step % report_every == 0 {
-            progress.update(step, sim.time());
-        }
-    }
-    m.stepping_seconds += clock.elapsed().as_secs_f64();
-    save_checkpoint(plan, ctx, &sim, &m, &source)?;
-    if let Some(w) = traj {
+    let mut run = Run {
+        plan,
+        ctx,
+        sim,
+        m,
+        source,
+        traj,
+        clock: Instant::now(),
+    };
+    driver::drive(&mut run, ctx, checkpoint.is_some(), plan.output.checkpoint_every_steps)?;
+    if let Some(w) = run.traj.take() {
         w.close().map_err(out_err)?;
     }
-    progress.finish(total, sim.time());
-    Ok((sim, m, source))
+    Ok((run.sim, run.m, run.source))
 }
 
 /// Seconds per (step × fluid particle) of the walled run and of a periodic box of the same
@@ -1455,7 +1492,7 @@ pub fn run_tube(
     checkpoint: Option<&Checkpoint>,
 ) -> Result<serde_json::Value, RunError> {
     let plan = tube_plan(s);
-    let (sim, m, source) = drive(&plan, ctx, checkpoint)?;
+    let (sim, m, source) = run_plan(&plan, ctx, checkpoint)?;
     let specific = tube_results(&plan, ctx, &sim, &m)?;
     wall_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step), specific)
 }
@@ -1467,7 +1504,7 @@ pub fn run_couette(
     checkpoint: Option<&Checkpoint>,
 ) -> Result<serde_json::Value, RunError> {
     let plan = couette_plan(s);
-    let (sim, m, source) = drive(&plan, ctx, checkpoint)?;
+    let (sim, m, source) = run_plan(&plan, ctx, checkpoint)?;
     let specific = couette_results(&plan, ctx, &sim, &m)?;
     wall_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step), specific)
 }
