@@ -21,19 +21,444 @@
 
 use crate::driver::{self, Stepper};
 use crate::file::{
-    CouetteScenario, FluidSection, InitialWallForce, TubeScenario, WallOutput, WallRunSection, WallsSection,
+    f_dt, f_lambda, one_u64, validate_fluid_params, validate_output, validate_stepping, yes, Check, FluidSection,
+    ScenarioError,
 };
 use crate::fluid::{out_err, particles_from_checkpoint, particles_into_checkpoint, CHECKPOINT_FILE, TRAJECTORY_FILE};
 use crate::{RunContext, RunError};
 use glam::DVec3;
-use hemodpd_engine::walls::{self, WallConfig, WallForceProfile, WallSetup, WallShape, Walls, WallsState};
+use hemodpd_engine::walls::{
+    self, ControlLaw, Reflection, WallConfig, WallForceProfile, WallSetup, WallShape, Walls, WallsState,
+};
 use hemodpd_engine::{init, ForceField, PairParams, PeriodicBox, SimConfig, SimState, Simulation};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{RunMetadata, TrajectoryWriter};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
+
+// ---- the scenario files: `[fluid]` (shared, [`FluidSection`]), `[walls]`, `[run]`, `[output]`, `[tube]` or `[plates]` ----
+
+/// `[output]` of the wall scenarios (optional). Steps count from the start of the walled run
+/// (adaptation included).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallOutput {
+    /// Write a frame (fluid and wall particles, with types) to `trajectory.h5` every this many
+    /// steps; 0 (default) writes no trajectory.
+    #[serde(default)]
+    pub trajectory_every_steps: u64,
+    /// Store every this-many-th particle in a frame (default 1: all).
+    #[serde(default = "one_u64")]
+    pub particle_stride: u64,
+    /// Write `checkpoint.h5` every this many steps; 0 (default): only at the end and on Ctrl-C.
+    #[serde(default)]
+    pub checkpoint_every_steps: u64,
+}
+
+impl Default for WallOutput {
+    fn default() -> Self {
+        Self {
+            trajectory_every_steps: 0,
+            particle_stride: 1,
+            checkpoint_every_steps: 0,
+        }
+    }
+}
+
+fn hundred() -> u64 {
+    100
+}
+
+fn w_bins() -> usize {
+    5
+}
+fn w_gain() -> f64 {
+    3.0
+}
+fn w_every() -> u64 {
+    500
+}
+fn w_iters() -> u64 {
+    10
+}
+fn w_equil() -> u64 {
+    300
+}
+fn w_profile_bins() -> usize {
+    16
+}
+
+/// Initial near-wall force of the adaptive control, when no saved profile is loaded.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum InitialWallForce {
+    /// Start from zero (the frozen wall particles already supply the repulsion).
+    #[default]
+    Zero,
+    /// The integrated conservative force of a half-space of fluid, πρa(rc − h)³(rc + 3h)/(12 rc).
+    HalfSpace,
+    /// The converged profile of an earlier adaptive run of the same fluid, geometry, bins,
+    /// control law and reflection, from the cache directory (zero when there is none). The
+    /// summary names the file it came from.
+    Cached,
+}
+
+/// `[walls]`: reflection and the adaptive near-wall force (docs/walls.md).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallsSection {
+    /// `"bounce-back"` (default, no slip) or `"specular"`.
+    #[serde(default)]
+    pub reflection: Reflection,
+    /// Adaptive control on (default true).
+    #[serde(default = "yes")]
+    pub adaptive: bool,
+    /// `"gradient"` (default: F_k += α(e_k − e_{k+1})) or `"local"` (F_k += α e_k).
+    #[serde(default)]
+    pub law: ControlLaw,
+    /// Bins of the near-wall layer 0 ≤ h < rc (default 5).
+    #[serde(default = "w_bins")]
+    pub bins: usize,
+    /// Gain α, force units (default 3).
+    #[serde(default = "w_gain")]
+    pub gain: f64,
+    /// Steps averaged per update M (default 500).
+    #[serde(default = "w_every")]
+    pub update_every: u64,
+    /// Number of updates (default 10); the flow is on during adaptation.
+    #[serde(default = "w_iters")]
+    pub adapt_iterations: u64,
+    /// Initial force profile: `"zero"` (default; the frozen wall particles supply the
+    /// repulsion), `"half-space"` (πρa(rc − h)³(rc + 3h)/(12rc)) or `"cached"` (the converged
+    /// profile of an earlier adaptive run with the same fluid, geometry, bins, law and
+    /// reflection, from the cache directory; zero when there is none).
+    #[serde(default)]
+    pub initial: InitialWallForce,
+    /// A force-profile CSV to start from (e.g. a previous run's `wall_force.csv`), relative to
+    /// the scenario file: used instead of `initial` when it matches the fluid and bins. Only
+    /// read, never written.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub force_file: Option<PathBuf>,
+}
+
+/// `[run]` of the wall scenarios (model units).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallRunSection {
+    /// Time step (default 0.01).
+    #[serde(default = "f_dt")]
+    pub timestep: f64,
+    /// Groot–Warren λ (default 0.5).
+    #[serde(default = "f_lambda")]
+    pub lambda: f64,
+    /// Steps of the periodic fluid before the walls are cut out of it (default 300).
+    #[serde(default = "w_equil")]
+    pub equilibration_steps: u64,
+    /// Steps of flow development after adaptation, not sampled.
+    pub flow_steps: u64,
+    /// Sampled steps.
+    pub steps: u64,
+    /// Sample the profiles every this many steps.
+    pub sample_every: u64,
+    /// Bins of the velocity/density profile across the channel (default 16).
+    #[serde(default = "w_profile_bins")]
+    pub profile_bins: usize,
+    /// Also time the same number of fluid particles in a periodic box, for the wall overhead
+    /// (default true).
+    #[serde(default = "yes")]
+    pub measure_overhead: bool,
+}
+
+/// `[tube]`: the capillary, in rc. The paper's 10 µm × 45 µm tube is radius 5, length 22.5 at
+/// `length_scale_um_per_rc = 1`.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TubeSection {
+    /// Radius of the fluid region, rc (≥ 2).
+    pub radius: f64,
+    /// Length along the (periodic) axis z, rc (≥ 3).
+    pub length: f64,
+    /// Body force per fluid particle along the axis (model units; drives the flow). Needed
+    /// unless `mean_velocity` is set, which takes precedence (the controller sets the force).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub body_force: Option<f64>,
+    /// Target mean axial velocity of the fluid (model units, optional). When set, a controller
+    /// adjusts the body force every `flow_control_every` steps to hold it (docs/walls.md).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mean_velocity: Option<f64>,
+    /// Steps between updates of the flow controller (default 100).
+    #[serde(default = "hundred")]
+    pub flow_control_every: u64,
+    /// µm per rc, to report lengths in µm as well (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub length_scale_um_per_rc: Option<f64>,
+    /// Viscosity of the fluid measured independently (model units; 0.842 for the standard
+    /// fluid by reverse Poiseuille, docs/engine.md). Optional: when given, the results compare the
+    /// profile with the analytic no-slip parabola v = n g (R² − r²)/(4η) for it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub reference_viscosity: Option<f64>,
+}
+
+/// `kind = "poiseuille-tube"`: body-force-driven flow in a tube with adaptive walls.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct TubeScenario {
+    pub format_version: u32,
+    pub kind: String,
+    pub seed: u64,
+    pub fluid: FluidSection,
+    pub tube: TubeSection,
+    pub walls: WallsSection,
+    pub run: WallRunSection,
+    #[serde(default)]
+    pub output: WallOutput,
+    /// Directory of the scenario file (for `walls.force_file`); not part of the file.
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
+/// `[plates]`: two plates normal to z moving along x at −speed (lower) and +speed (upper).
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct PlatesSection {
+    /// Distance between the surfaces, rc (≥ 3).
+    pub gap: f64,
+    /// Box edges along x and y, rc (each ≥ 3).
+    pub width: [f64; 2],
+    /// Plate speed U: the lower plate moves at −U, the upper at +U along x.
+    pub wall_speed: f64,
+}
+
+/// `kind = "couette"`: plane Couette flow between moving plates.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct CouetteScenario {
+    pub format_version: u32,
+    pub kind: String,
+    pub seed: u64,
+    pub fluid: FluidSection,
+    pub plates: PlatesSection,
+    pub walls: WallsSection,
+    pub run: WallRunSection,
+    #[serde(default)]
+    pub output: WallOutput,
+    /// Directory of the scenario file; not part of the file.
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
+fn validate_wall_common(
+    kind: &str,
+    want: &str,
+    f: &FluidSection,
+    w: &WallsSection,
+    r: &WallRunSection,
+    output: &WallOutput,
+    c: &Check,
+) -> Result<(), ScenarioError> {
+    if kind != want {
+        return Err(c.fail("kind", kind, &format!("{want:?}")));
+    }
+    validate_fluid_params(f, c)?;
+    if f.gamma <= 0.0 {
+        return Err(c.fail(
+            "fluid.gamma",
+            f.gamma,
+            "a positive dissipative coefficient (walls need dissipation for no slip)",
+        ));
+    }
+    if let Some(b) = f.box_size {
+        return Err(c.fail(
+            "fluid.box_size",
+            format!("{b:?}"),
+            "no box: the wall scenarios size it from [tube] or [plates]",
+        ));
+    }
+    if w.bins == 0 || w.bins > 100 {
+        return Err(c.fail("walls.bins", w.bins, "an integer from 1 to 100"));
+    }
+    c.range(
+        "walls.gain",
+        w.gain,
+        0.0,
+        100.0,
+        "a gain between 0 and 100 (stable below ≈ kBT·bins/rc; default 3)",
+    )?;
+    if w.update_every == 0 {
+        return Err(c.fail("walls.update_every", 0, "a positive number of steps"));
+    }
+    if w.adaptive && w.adapt_iterations == 0 {
+        return Err(c.fail(
+            "walls.adapt_iterations",
+            0,
+            "a positive number of updates when walls.adaptive = true (zero adapts nothing; set walls.adaptive = false for no adaptation)",
+        ));
+    }
+    if w.adaptive && w.gain == 0.0 {
+        return Err(c.fail(
+            "walls.gain",
+            0,
+            "a positive gain up to 100 when walls.adaptive = true (zero changes nothing; set walls.adaptive = false for no adaptation)",
+        ));
+    }
+    validate_stepping(*c, r.timestep, 0.05, r.lambda, r.steps, r.sample_every)?;
+    let adapt = if w.adaptive {
+        w.adapt_iterations.checked_mul(w.update_every)
+    } else {
+        Some(0)
+    };
+    let total = adapt
+        .and_then(|a| a.checked_add(r.flow_steps))
+        .and_then(|a| a.checked_add(r.steps));
+    if total.is_none_or(|t| t > 1_000_000_000_000) {
+        return Err(c.fail(
+            "walls.adapt_iterations",
+            w.adapt_iterations,
+            "a schedule of at most 1e12 steps in all (adapt_iterations × update_every + run.flow_steps + run.steps)",
+        ));
+    }
+    if r.profile_bins < 2 || r.profile_bins > 1000 {
+        return Err(c.fail("run.profile_bins", r.profile_bins, "an integer from 2 to 1000"));
+    }
+    validate_output(c, output.particle_stride)
+}
+
+/// Validates a `kind = "poiseuille-tube"` scenario.
+pub fn validate_tube(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
+    let c = Check { file };
+    validate_wall_common(&s.kind, "poiseuille-tube", &s.fluid, &s.walls, &s.run, &s.output, &c)?;
+    let rc = s.fluid.cutoff;
+    c.range(
+        "tube.radius",
+        s.tube.radius,
+        2.0 * rc,
+        200.0,
+        "a radius between 2 cut-offs and 200 rc",
+    )?;
+    c.range(
+        "tube.length",
+        s.tube.length,
+        3.0 * rc,
+        1e4,
+        "a length of at least 3 cut-offs",
+    )?;
+    match (s.tube.body_force, s.tube.mean_velocity) {
+        (None, None) => {
+            return Err(ScenarioError::Missing {
+                file: file.into(),
+                key: "tube.body_force".into(),
+                what: "the body force per fluid particle (model units, e.g. 0.05), or tube.mean_velocity for a flow held at a mean velocity".into(),
+            })
+        }
+        (Some(g), mean) => {
+            c.range(
+                "tube.body_force",
+                g,
+                -10.0,
+                10.0,
+                "a body force between −10 and 10 (model units; 0.05–0.2 keeps the flow laminar and the shear rate moderate)",
+            )?;
+            // no drive, no flow: the viscosity from the profile's curvature would be 0/0
+            if g == 0.0 && mean.is_none() {
+                return Err(c.fail(
+                    "tube.body_force",
+                    g,
+                    "a non-zero body force between −10 and 10 (zero drives no flow: the viscosity and the parabola fit would be meaningless), or tube.mean_velocity for a flow held at a mean velocity",
+                ));
+            }
+        }
+        (None, Some(_)) => {}
+    }
+    if let Some(l) = s.tube.length_scale_um_per_rc {
+        c.range(
+            "tube.length_scale_um_per_rc",
+            l,
+            1e-3,
+            1e3,
+            "µm per rc between 1e-3 and 1e3",
+        )?;
+    }
+    if let Some(u) = s.tube.mean_velocity {
+        if !(u.is_finite() && u != 0.0 && u.abs() <= 10.0) {
+            return Err(c.fail(
+                "tube.mean_velocity",
+                u,
+                "a non-zero mean velocity between −10 and 10 (model units; ≲ 1 keeps the Mach number low)",
+            ));
+        }
+    }
+    if s.tube.flow_control_every == 0 || s.tube.flow_control_every > 1_000_000 {
+        return Err(c.fail(
+            "tube.flow_control_every",
+            s.tube.flow_control_every,
+            "a number of steps from 1 to 1000000",
+        ));
+    }
+    if s.tube.mean_velocity.is_some() {
+        // the controller's window must be short against the tube's viscous time τ_v = nR²/(η j0²),
+        // or its one-window delay makes the loop oscillate (docs/walls.md)
+        let eta = s.tube.reference_viscosity.unwrap_or(1.0);
+        let tau_v = s.fluid.density * s.tube.radius * s.tube.radius / (eta * 2.404_825_557_695_773f64.powi(2));
+        let max_every = (0.5 * tau_v / s.run.timestep).floor().max(1.0) as u64;
+        if s.tube.flow_control_every > max_every {
+            return Err(c.fail(
+                "tube.flow_control_every",
+                s.tube.flow_control_every,
+                &format!(
+                    "at most {max_every} steps here: half the tube's viscous time nR²/(η j0²) = {tau_v:.3} over Δt"
+                ),
+            ));
+        }
+    }
+    if let Some(eta) = s.tube.reference_viscosity {
+        c.range(
+            "tube.reference_viscosity",
+            eta,
+            1e-3,
+            1e4,
+            "a viscosity between 1e-3 and 1e4 in model units (0.842 for the standard fluid)",
+        )?;
+    }
+    let side = 2.0 * (s.tube.radius + rc) + 0.5;
+    if s.fluid.density * side * side * s.tube.length > 5e8 {
+        return Err(c.fail("tube.radius", s.tube.radius, "a tube holding at most 5e8 particles"));
+    }
+    Ok(())
+}
+
+/// Validates a `kind = "couette"` scenario.
+pub fn validate_couette(s: &CouetteScenario, file: &str) -> Result<(), ScenarioError> {
+    let c = Check { file };
+    validate_wall_common(&s.kind, "couette", &s.fluid, &s.walls, &s.run, &s.output, &c)?;
+    let rc = s.fluid.cutoff;
+    c.range(
+        "plates.gap",
+        s.plates.gap,
+        3.0 * rc,
+        1e4,
+        "a gap of at least 3 cut-offs",
+    )?;
+    for (k, &w) in s.plates.width.iter().enumerate() {
+        c.range(
+            &format!("plates.width[{k}]"),
+            w,
+            3.0 * rc,
+            1e4,
+            "a box edge of at least 3 cut-offs",
+        )?;
+    }
+    let speed_allowed = "a non-zero plate speed between −5 and 5 (model units; |U|·Δt must stay well below the cell size; zero shears nothing, so the viscosity, stress over shear rate, would be 0/0)";
+    c.range("plates.wall_speed", s.plates.wall_speed, -5.0, 5.0, speed_allowed)?;
+    if s.plates.wall_speed == 0.0 {
+        return Err(c.fail("plates.wall_speed", s.plates.wall_speed, speed_allowed));
+    }
+    if s.fluid.density * s.plates.width[0] * s.plates.width[1] * (s.plates.gap + 2.0 * rc) > 5e8 {
+        return Err(c.fail("plates.gap", s.plates.gap, "a channel holding at most 5e8 particles"));
+    }
+    Ok(())
+}
 
 /// Blocks the sampled steps are split into; the standard errors of the fitted viscosity and of
 /// the wall stress come from the scatter between blocks.

@@ -15,15 +15,138 @@
 //! the checkpoint.
 
 use crate::driver::{self, Stepper};
-use crate::file::FluidScenario;
+use crate::file::{
+    f_dt, f_lambda, one_u64, validate_fluid_params, validate_output, validate_stepping, Check, FluidSection,
+    ScenarioError,
+};
 use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::init::{self, FluidSpec, Placement};
 use hemodpd_engine::{observe, ForceField, PairParams, Particles, SimConfig, SimState, Simulation};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{GridSpec, RunMetadata, TrajectoryWriter, UnitSystem};
+use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::time::Instant;
+
+// ---- the scenario file: `[fluid]` (shared, [`FluidSection`]), `[run]`, `[output]` ----
+
+fn twenty() -> u64 {
+    20
+}
+
+/// `kind = "dpd-fluid"`: the standard periodic DPD fluid, in model (DPD) units.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidScenario {
+    pub format_version: u32,
+    pub kind: String,
+    pub seed: u64,
+    pub fluid: FluidSection,
+    pub run: FluidRunSection,
+    #[serde(default)]
+    pub output: FluidOutput,
+}
+
+/// `[output]` of the fluid scenario. Steps count from the start of production.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidOutput {
+    /// Write a frame (particles and binned density/velocity) to `trajectory.h5` every this many
+    /// production steps; 0 (default) writes no trajectory.
+    #[serde(default)]
+    pub trajectory_every_steps: u64,
+    /// Store every this-many-th particle in a frame (default 1: all).
+    #[serde(default = "one_u64")]
+    pub particle_stride: u64,
+    /// Bins of the density/velocity field along z (default 20; 0: no field).
+    #[serde(default = "twenty")]
+    pub field_bins: u64,
+    /// Write `checkpoint.h5` every this many steps (counting equilibration); 0 (default): only
+    /// at the end and on Ctrl-C.
+    #[serde(default)]
+    pub checkpoint_every_steps: u64,
+}
+
+impl Default for FluidOutput {
+    fn default() -> Self {
+        Self {
+            trajectory_every_steps: 0,
+            particle_stride: 1,
+            field_bins: 20,
+            checkpoint_every_steps: 0,
+        }
+    }
+}
+
+/// `[run]` of the fluid scenario.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidRunSection {
+    /// Time step (default 0.01).
+    #[serde(default = "f_dt")]
+    pub timestep: f64,
+    /// Groot–Warren λ (default 0.5).
+    #[serde(default = "f_lambda")]
+    pub lambda: f64,
+    /// Equilibration steps (not sampled).
+    pub equilibration_steps: u64,
+    /// Production steps.
+    pub steps: u64,
+    /// Sample T and p every this many steps.
+    pub sample_every: u64,
+}
+
+/// Validates a `kind = "dpd-fluid"` scenario.
+pub fn validate(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
+    let c = Check { file };
+    let f = &s.fluid;
+    validate_fluid_params(f, &c)?;
+    if f.gamma <= 0.0 {
+        // σ² = 2γkBT: γ = 0 switches the thermostat off, and the reported temperature would be
+        // compared with a kBT nothing imposes
+        return Err(c.fail(
+            "fluid.gamma",
+            f.gamma,
+            "a positive dissipative coefficient up to 1e4 (γ = 0 switches the DPD thermostat off, so the temperature would not be fluid.kbt; standard: 4.5)",
+        ));
+    }
+    let Some(box_size) = f.box_size else {
+        return Err(ScenarioError::Missing {
+            file: file.into(),
+            key: "fluid.box_size".into(),
+            what: "the box edges in rc, e.g. [10.0, 10.0, 10.0]".into(),
+        });
+    };
+    for (k, &l) in box_size.iter().enumerate() {
+        c.range(
+            &format!("fluid.box_size[{k}]"),
+            l,
+            3.0 * f.cutoff,
+            1e4,
+            "a box edge of at least 3 cut-offs",
+        )?;
+    }
+    let n = f.density * box_size.iter().product::<f64>();
+    if n > 5e8 {
+        return Err(c.fail(
+            "fluid.box_size",
+            format!("{box_size:?}"),
+            "a box holding at most 5e8 particles at this density",
+        ));
+    }
+    let r = &s.run;
+    validate_stepping(c, r.timestep, 0.2, r.lambda, r.steps, r.sample_every)?;
+    validate_output(&c, s.output.particle_stride)?;
+    if s.output.field_bins > 1_000_000 {
+        return Err(c.fail(
+            "output.field_bins",
+            s.output.field_bins,
+            "an integer from 0 (no field) to 1000000",
+        ));
+    }
+    Ok(())
+}
 
 /// Groot & Warren (1997), Fig. 4: measured pressure of the standard fluid (ρ = 3, a = 25, kBT = 1).
 pub const GROOT_WARREN_PRESSURE_RHO3_A25: f64 = 23.7;
