@@ -258,12 +258,12 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
         }
         "poiseuille-tube" => {
             let s: TubeScenario = value.try_into().map_err(|e| syntax(file, e))?;
-            crate::channel::validate_tube(&s, file)?;
+            crate::channel::tube::validate(&s, file)?;
             Ok(Scenario::PoiseuilleTube(s))
         }
         "couette" => {
             let s: CouetteScenario = value.try_into().map_err(|e| syntax(file, e))?;
-            crate::channel::validate_couette(&s, file)?;
+            crate::channel::couette::validate(&s, file)?;
             Ok(Scenario::Couette(s))
         }
         "capillary" => {
