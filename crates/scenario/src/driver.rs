@@ -5,9 +5,10 @@
 //! controllers) and says when a frame is due and how to save itself. [`drive`] does the rest the
 //! same way for every kind:
 //!
-//! * at every step boundary (after `n` steps): a frame when due, a checkpoint every
-//!   `checkpoint_every` steps; on resume the boundary the checkpoint was written at is not
-//!   repeated;
+//! * at every step boundary (after `n` steps): the kind's own boundary work
+//!   ([`Stepper::at_boundary`], e.g. a phase change), then a frame when due and a checkpoint
+//!   every `checkpoint_every` steps; on resume the frame and checkpoint of the boundary the
+//!   checkpoint was written at are not repeated (the boundary work is, so it must be idempotent);
 //! * on Ctrl-C ([`crate::INTERRUPTED`]) or at [`RunContext::stop_at_step`]: a final frame (if
 //!   none was due), a checkpoint, and [`RunError::Interrupted`];
 //! * at the end: a checkpoint marked finished.
@@ -35,6 +36,13 @@ pub trait Stepper {
     fn flush(&mut self) -> Result<(), RunError>;
     /// Writes the checkpoint of the current state.
     fn save_checkpoint(&mut self, ctx: &RunContext) -> Result<(), RunError>;
+    /// Work due at the current step boundary before its frame and checkpoint: phase changes
+    /// that take effect at a step count (e.g. adaptation off, sampling on). Called at every
+    /// boundary, the last and the one a resumed run starts from included; at the latter it
+    /// repeats what the interrupted run did there, so it must be idempotent. Default: nothing.
+    fn at_boundary(&mut self) -> Result<(), RunError> {
+        Ok(())
+    }
 }
 
 /// Runs `s` to the end of its schedule (or to an interrupt). `resumed`: the current step is the
@@ -45,6 +53,7 @@ pub fn drive(s: &mut impl Stepper, ctx: &RunContext, resumed: bool, checkpoint_e
     let mut progress = ctx.progress(total, start);
     let report_every = (total / 200).max(1);
     loop {
+        s.at_boundary()?;
         let step = s.step_count();
         if step > start || !resumed {
             if s.frame_due() {

@@ -9,16 +9,144 @@
 //! (seed, step, ids), the saved state includes the last forces, and the sampled series are saved
 //! with it. On resume the trajectory is cut back to the last scheduled frame at or before the
 //! checkpoint, so it ends up with exactly the frames of an uninterrupted run.
+//!
+//! The stepping loop (frame and checkpoint cadence, Ctrl-C, progress) is [`crate::driver`]'s;
+//! this module supplies the build, the phases and sampling ([`Stepper::advance`]), the frame and
+//! the checkpoint.
 
-use crate::file::FluidScenario;
+use crate::driver::{self, Stepper};
+use crate::file::{
+    f_dt, f_lambda, one_u64, validate_fluid_params, validate_output, validate_stepping, Check, FluidSection,
+    ScenarioError,
+};
 use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::init::{self, FluidSpec, Placement};
 use hemodpd_engine::{observe, ForceField, PairParams, Particles, SimConfig, SimState, Simulation};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{GridSpec, RunMetadata, TrajectoryWriter, UnitSystem};
+use serde::{Deserialize, Serialize};
 use serde_json::json;
-use std::sync::atomic::Ordering;
+use std::time::Instant;
+
+// ---- the scenario file: `[fluid]` (shared, [`FluidSection`]), `[run]`, `[output]` ----
+
+fn twenty() -> u64 {
+    20
+}
+
+/// `kind = "dpd-fluid"`: the standard periodic DPD fluid, in model (DPD) units.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidScenario {
+    pub format_version: u32,
+    pub kind: String,
+    pub seed: u64,
+    pub fluid: FluidSection,
+    pub run: FluidRunSection,
+    #[serde(default)]
+    pub output: FluidOutput,
+}
+
+/// `[output]` of the fluid scenario. Steps count from the start of production.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidOutput {
+    /// Write a frame (particles and binned density/velocity) to `trajectory.h5` every this many
+    /// production steps; 0 (default) writes no trajectory.
+    #[serde(default)]
+    pub trajectory_every_steps: u64,
+    /// Store every this-many-th particle in a frame (default 1: all).
+    #[serde(default = "one_u64")]
+    pub particle_stride: u64,
+    /// Bins of the density/velocity field along z (default 20; 0: no field).
+    #[serde(default = "twenty")]
+    pub field_bins: u64,
+    /// Write `checkpoint.h5` every this many steps (counting equilibration); 0 (default): only
+    /// at the end and on Ctrl-C.
+    #[serde(default)]
+    pub checkpoint_every_steps: u64,
+}
+
+impl Default for FluidOutput {
+    fn default() -> Self {
+        Self {
+            trajectory_every_steps: 0,
+            particle_stride: 1,
+            field_bins: 20,
+            checkpoint_every_steps: 0,
+        }
+    }
+}
+
+/// `[run]` of the fluid scenario.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct FluidRunSection {
+    /// Time step (default 0.01).
+    #[serde(default = "f_dt")]
+    pub timestep: f64,
+    /// Groot–Warren λ (default 0.5).
+    #[serde(default = "f_lambda")]
+    pub lambda: f64,
+    /// Equilibration steps (not sampled).
+    pub equilibration_steps: u64,
+    /// Production steps.
+    pub steps: u64,
+    /// Sample T and p every this many steps.
+    pub sample_every: u64,
+}
+
+/// Validates a `kind = "dpd-fluid"` scenario.
+pub fn validate(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
+    let c = Check { file };
+    let f = &s.fluid;
+    validate_fluid_params(f, &c)?;
+    if f.gamma <= 0.0 {
+        // σ² = 2γkBT: γ = 0 switches the thermostat off, and the reported temperature would be
+        // compared with a kBT nothing imposes
+        return Err(c.fail(
+            "fluid.gamma",
+            f.gamma,
+            "a positive dissipative coefficient up to 1e4 (γ = 0 switches the DPD thermostat off, so the temperature would not be fluid.kbt; standard: 4.5)",
+        ));
+    }
+    let Some(box_size) = f.box_size else {
+        return Err(ScenarioError::Missing {
+            file: file.into(),
+            key: "fluid.box_size".into(),
+            what: "the box edges in rc, e.g. [10.0, 10.0, 10.0]".into(),
+        });
+    };
+    for (k, &l) in box_size.iter().enumerate() {
+        c.range(
+            &format!("fluid.box_size[{k}]"),
+            l,
+            3.0 * f.cutoff,
+            1e4,
+            "a box edge of at least 3 cut-offs",
+        )?;
+    }
+    let n = f.density * box_size.iter().product::<f64>();
+    if n > 5e8 {
+        return Err(c.fail(
+            "fluid.box_size",
+            format!("{box_size:?}"),
+            "a box holding at most 5e8 particles at this density",
+        ));
+    }
+    let r = &s.run;
+    validate_stepping(c, r.timestep, 0.2, r.lambda, r.steps, r.sample_every)?;
+    validate_output(&c, s.output.particle_stride)?;
+    if s.output.field_bins > 1_000_000 {
+        return Err(c.fail(
+            "output.field_bins",
+            s.output.field_bins,
+            "an integer from 0 (no field) to 1000000",
+        ));
+    }
+    Ok(())
+}
 
 /// Groot & Warren (1997), Fig. 4: measured pressure of the standard fluid (ρ = 3, a = 25, kBT = 1).
 pub const GROOT_WARREN_PRESSURE_RHO3_A25: f64 = 23.7;
@@ -236,6 +364,81 @@ fn write_frame(s: &FluidScenario, w: &mut TrajectoryWriter, sim: &Simulation) ->
     Ok(())
 }
 
+/// A running fluid scenario (the [`Stepper`] of [`driver::drive`]): equilibration, then
+/// production with T and p sampled every `run.sample_every` steps.
+struct Run<'a> {
+    s: &'a FluidScenario,
+    sim: Simulation,
+    series: Series,
+    traj: Option<TrajectoryWriter>,
+    /// Production timing: since the later of the production start and the last checkpoint.
+    clock: Instant,
+}
+
+impl Stepper for Run<'_> {
+    fn step_count(&self) -> u64 {
+        self.sim.step_count()
+    }
+    fn max_steps(&self) -> u64 {
+        self.s.run.equilibration_steps + self.s.run.steps
+    }
+    fn time(&self) -> f64 {
+        self.sim.time()
+    }
+    fn finished(&self) -> bool {
+        self.sim.step_count() >= self.max_steps()
+    }
+
+    fn advance(&mut self) -> Result<(), RunError> {
+        let (sim, series) = (&mut self.sim, &mut self.series);
+        let step = sim.step_count();
+        let eq = self.s.run.equilibration_steps;
+        if step == eq {
+            self.clock = Instant::now();
+        }
+        let sample = step >= eq && (step - eq) % self.s.run.sample_every == 0;
+        if sample {
+            let virial = sim.step_with_virial().map_err(engine_err)?;
+            series
+                .temperature
+                .push(observe::temperature(sim.particles(), sim.field()));
+            series
+                .pressure
+                .push(observe::pressure(sim.particles(), sim.field(), sim.domain(), &virial));
+        } else {
+            sim.step().map_err(engine_err)?;
+        }
+        Ok(())
+    }
+
+    fn frame_due(&self) -> bool {
+        frame_due(self.s, self.sim.step_count())
+    }
+
+    fn write_frame(&mut self) -> Result<(), RunError> {
+        match self.traj.as_mut() {
+            Some(w) => write_frame(self.s, w, &self.sim),
+            None => Ok(()),
+        }
+    }
+
+    fn flush(&mut self) -> Result<(), RunError> {
+        match self.traj.as_mut() {
+            Some(w) => w.flush().map_err(out_err),
+            None => Ok(()),
+        }
+    }
+
+    fn save_checkpoint(&mut self, ctx: &RunContext) -> Result<(), RunError> {
+        // production time only: nothing before the first production step
+        if self.sim.step_count() > self.s.run.equilibration_steps {
+            self.series.production_seconds += self.clock.elapsed().as_secs_f64();
+        }
+        self.clock = Instant::now();
+        save_checkpoint(self.s, ctx, &self.sim, &self.series)
+    }
+}
+
 /// Runs the scenario from step 0.
 pub fn run(s: &FluidScenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     run_from(s, ctx, None)
@@ -247,13 +450,12 @@ pub fn run_from(
     ctx: &RunContext,
     checkpoint: Option<&Checkpoint>,
 ) -> Result<serde_json::Value, RunError> {
-    let (mut sim, mut series) = match checkpoint {
+    let (sim, series) = match checkpoint {
         Some(ck) => restore(s, ck)?,
         None => (build(s)?, Series::default()),
     };
     let n = sim.particles().len();
-    let eq = s.run.equilibration_steps;
-    let total = eq + s.run.steps;
+    let total = s.run.equilibration_steps + s.run.steps;
     let start = sim.step_count();
     if start > total {
         return Err(RunError::Output(format!(
@@ -261,7 +463,7 @@ pub fn run_from(
         )));
     }
     let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
-    let mut traj = if s.output.trajectory_every_steps > 0 {
+    let traj = if s.output.trajectory_every_steps > 0 {
         Some(match checkpoint {
             Some(_) if traj_path.exists() => {
                 // drop the frames after the checkpoint, and an off-schedule final frame written on interrupt
@@ -287,73 +489,18 @@ pub fn run_from(
     } else {
         None
     };
-    let mut progress = ctx.progress(total, start);
-    let report_every = (total / 200).max(1);
-    let mut t_prod = std::time::Instant::now();
-    let mut step = start;
-    while step < total {
-        // `step` steps are done; frame and checkpoint schedules refer to this state
-        if step > start || checkpoint.is_none() {
-            if let Some(w) = traj.as_mut() {
-                if frame_due(s, step) {
-                    write_frame(s, w, &sim)?;
-                }
-            }
-            let ck_every = s.output.checkpoint_every_steps;
-            if ck_every > 0 && step > start && step % ck_every == 0 {
-                series.production_seconds += t_prod.elapsed().as_secs_f64();
-                t_prod = std::time::Instant::now();
-                save_checkpoint(s, ctx, &sim, &series)?;
-            }
-        }
-        if crate::INTERRUPTED.load(Ordering::Relaxed) || ctx.stop_at_step == Some(step) {
-            if let Some(w) = traj.as_mut() {
-                if !frame_due(s, step) {
-                    write_frame(s, w, &sim)?; // the final frame; dropped again on resume
-                }
-                w.flush().map_err(out_err)?;
-            }
-            if step >= eq {
-                series.production_seconds += t_prod.elapsed().as_secs_f64();
-            }
-            save_checkpoint(s, ctx, &sim, &series)?;
-            progress.finish(step, sim.time());
-            return Err(RunError::Interrupted {
-                step,
-                dir: ctx.out_dir.clone(),
-            });
-        }
-        if step == eq {
-            t_prod = std::time::Instant::now();
-        }
-        let sample = step >= eq && (step - eq) % s.run.sample_every == 0;
-        if sample {
-            let virial = sim.step_with_virial().map_err(engine_err)?;
-            series
-                .temperature
-                .push(observe::temperature(sim.particles(), sim.field()));
-            series
-                .pressure
-                .push(observe::pressure(sim.particles(), sim.field(), sim.domain(), &virial));
-        } else {
-            sim.step().map_err(engine_err)?;
-        }
-        step += 1;
-        if step % report_every == 0 {
-            progress.update(step, sim.time());
-        }
-    }
-    if let Some(w) = traj.as_mut() {
-        if frame_due(s, step) {
-            write_frame(s, w, &sim)?;
-        }
-    }
-    series.production_seconds += t_prod.elapsed().as_secs_f64();
-    save_checkpoint(s, ctx, &sim, &series)?;
-    if let Some(w) = traj {
+    let mut run = Run {
+        s,
+        sim,
+        series,
+        traj,
+        clock: Instant::now(),
+    };
+    driver::drive(&mut run, ctx, checkpoint.is_some(), s.output.checkpoint_every_steps)?;
+    if let Some(w) = run.traj.take() {
         w.close().map_err(out_err)?;
     }
-    progress.finish(total, sim.time());
+    let Run { sim, series, .. } = run;
     let stats = |d: &[f64]| observe::block_error(d).or_else(|_| observe::block_average(d, 2)).ok();
     let (t_mean, t_se) = stats(&series.temperature).unwrap_or((f64::NAN, f64::NAN));
     let (p_mean, p_se) = stats(&series.pressure).unwrap_or((f64::NAN, f64::NAN));

@@ -16,7 +16,7 @@ pub mod mesh_cache;
 pub mod stretching;
 pub mod units;
 
-pub use file::{load, load_str, Scenario, ScenarioError};
+pub use file::{load, load_str, Scenario, ScenarioError, FORMAT_VERSION};
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -24,9 +24,6 @@ use std::sync::atomic::AtomicBool;
 /// Set (e.g. by a Ctrl-C handler) to ask a running scenario to stop: it writes a checkpoint and
 /// a final frame, then returns [`RunError::Interrupted`].
 pub static INTERRUPTED: AtomicBool = AtomicBool::new(false);
-
-/// Version of the scenario file format this build reads.
-pub const FORMAT_VERSION: u32 = 1;
 
 /// Where and how a run happens.
 #[derive(Clone, Debug)]
@@ -103,7 +100,7 @@ pub enum RunError {
 /// Stretching counts forces done; the time-stepping kinds count steps (equilibration included
 /// for `dpd-fluid`; adaptation, flow development and sampling for the wall kinds).
 pub fn schedule_end(scenario: &Scenario) -> (u64, &'static str) {
-    fn walls_total(w: &file::WallsSection, r: &file::WallRunSection) -> u64 {
+    fn walls_total(w: &channel::WallsSection, r: &channel::WallRunSection) -> u64 {
         let adapt = if w.adaptive {
             w.adapt_iterations.saturating_mul(w.update_every)
         } else {

@@ -1,7 +1,7 @@
 //! The optical-tweezers stretching scenario (SPEC §2): no fluid, static equilibrium per force,
 //! diameters compared with Mills et al. (2004).
 
-use crate::file::StretchingScenario;
+use crate::file::{one, yes, Check, ScenarioError};
 use crate::mesh_cache::{self, constants_um_pn};
 use crate::{RunContext, RunError};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
@@ -9,7 +9,245 @@ use hemodpd_io::{FrameScalar, Quantity, RunMetadata, TrajectoryWriter, UnitSyste
 use hemodpd_membrane::params::ModelParams;
 use hemodpd_membrane::stretch::{self, StretchOptions, StretchPoint};
 use hemodpd_membrane::{MembraneModel, Mesh, ReferenceState};
+use serde::{Deserialize, Serialize};
 use serde_json::json;
+use std::path::PathBuf;
+
+// ---- the scenario file: `[membrane]`, `[stretching]`, `[output]` ----
+
+fn default_temperature() -> f64 {
+    300.0
+}
+fn default_k_area() -> f64 {
+    hemodpd_membrane::forces::DEFAULT_K_AREA_N_PER_M
+}
+fn default_k_volume() -> f64 {
+    hemodpd_membrane::forces::DEFAULT_K_VOLUME_N_PER_M2
+}
+fn default_end_fraction() -> f64 {
+    0.05
+}
+fn default_tolerance() -> f64 {
+    1e-4
+}
+fn default_max_iterations() -> u64 {
+    100_000
+}
+
+/// `[membrane]`: the cell model.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct MembraneSection {
+    /// Number of mesh vertices N (≥ 100): sets the level of coarse-graining (Eqs. 8, 9, 12).
+    pub vertices: i64,
+    /// Temperature, K (default 300).
+    #[serde(default = "default_temperature")]
+    pub temperature_k: f64,
+    /// `"stress-free"` (default: each link and triangle unstrained at rest) or `"uniform"` (the paper's one L0).
+    #[serde(default)]
+    pub reference: ReferenceState,
+    /// Multiplies the Eq. 12 persistence length (the paper's ±10 % sensitivity study). Default 1.
+    #[serde(default = "one")]
+    pub persistence_scale: f64,
+    /// Explicit persistence length in nm, replacing Eq. 12 (e.g. the fine model's 7.5).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub persistence_length_nm: Option<f64>,
+    /// Global area constraint k_a, N/m (default 2e-3 = 2000 pN/µm ≈ 240 μ0).
+    #[serde(default = "default_k_area")]
+    pub area_constraint_n_per_m: f64,
+    /// Global volume constraint k_v, N/m² (default 1e3 = 1000 pN/µm²).
+    #[serde(default = "default_k_volume")]
+    pub volume_constraint_n_per_m2: f64,
+    /// A user's mesh (OFF, PLY or NAME.vertices.csv with NAME.triangles.csv, lengths in µm),
+    /// relative to the scenario file. Default: generate (and cache) the relaxed Evans–Fung mesh.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mesh_file: Option<PathBuf>,
+}
+
+/// `[stretching]`: the optical-tweezers protocol.
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StretchingSection {
+    /// Total stretching forces, pN, increasing, within [0, 500].
+    pub forces_pn: Vec<f64>,
+    /// Fraction of vertices loaded at each end (default 0.05, the paper's).
+    #[serde(default = "default_end_fraction")]
+    pub end_fraction: f64,
+    /// Static equilibrium: the largest net force on any vertex below this, pN (default 1e-4).
+    #[serde(default = "default_tolerance")]
+    pub tolerance_pn: f64,
+    /// Iteration cap per force (default 100000); not converging is an error.
+    #[serde(default = "default_max_iterations")]
+    pub max_iterations: u64,
+}
+
+/// `[output]`
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StretchingOutput {
+    /// Write the shape at each force to `shapes.h5` (+ `.xmf`). Default true.
+    #[serde(default = "yes")]
+    pub shapes: bool,
+}
+
+impl Default for StretchingOutput {
+    fn default() -> Self {
+        Self { shapes: true }
+    }
+}
+
+/// `kind = "stretching"`
+#[derive(Clone, Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct StretchingScenario {
+    pub format_version: u32,
+    pub kind: String,
+    /// Seed of everything random (mesh point jitter).
+    pub seed: u64,
+    pub membrane: MembraneSection,
+    pub stretching: StretchingSection,
+    #[serde(default)]
+    pub output: StretchingOutput,
+    /// Directory of the scenario file (to resolve relative paths); not part of the file.
+    #[serde(skip)]
+    pub base_dir: PathBuf,
+}
+
+fn validate_membrane(m: &MembraneSection, c: &Check) -> Result<(), ScenarioError> {
+    use hemodpd_membrane::params::MIN_VERTICES;
+    if m.vertices < MIN_VERTICES as i64 || m.vertices > 2_000_000 {
+        return Err(c.fail(
+            "membrane.vertices",
+            m.vertices,
+            &format!("an integer from {MIN_VERTICES} to 2000000 (the coarse-grained model needs at least {MIN_VERTICES} vertices to mesh and represent the cell)"),
+        ));
+    }
+    c.range(
+        "membrane.temperature_k",
+        m.temperature_k,
+        200.0,
+        400.0,
+        "a temperature in kelvin between 200 and 400 (room temperature is 300)",
+    )?;
+    c.range(
+        "membrane.persistence_scale",
+        m.persistence_scale,
+        0.1,
+        10.0,
+        "a factor between 0.1 and 10 multiplying the Eq. 12 persistence length",
+    )?;
+    if let Some(p) = m.persistence_length_nm {
+        c.range(
+            "membrane.persistence_length_nm",
+            p,
+            0.01,
+            1000.0,
+            "a length in nm between 0.01 and 1000 (the fine model's is 7.5)",
+        )?;
+    }
+    c.range(
+        "membrane.area_constraint_n_per_m",
+        m.area_constraint_n_per_m,
+        0.0,
+        10.0,
+        "k_a in N/m between 0 and 10 (default 2e-3; the shear modulus is 8.3e-6)",
+    )?;
+    c.range(
+        "membrane.volume_constraint_n_per_m2",
+        m.volume_constraint_n_per_m2,
+        0.0,
+        1e7,
+        "k_v in N/m² between 0 and 1e7 (default 1e3)",
+    )?;
+    Ok(())
+}
+
+/// Validates a `kind = "stretching"` scenario.
+pub fn validate(s: &StretchingScenario, file: &str) -> Result<(), ScenarioError> {
+    let c = Check { file };
+    if s.kind != "stretching" {
+        return Err(c.fail("kind", &s.kind, "\"stretching\""));
+    }
+    validate_membrane(&s.membrane, &c)?;
+    let st = &s.stretching;
+    if st.forces_pn.is_empty() {
+        return Err(c.fail("stretching.forces_pn", "[]", "a non-empty list of forces in pN"));
+    }
+    for (i, &f) in st.forces_pn.iter().enumerate() {
+        c.range(
+            &format!("stretching.forces_pn[{i}]"),
+            f,
+            0.0,
+            500.0,
+            "a force in pN between 0 and 500",
+        )?;
+        if i > 0 && f <= st.forces_pn[i - 1] {
+            return Err(c.fail(
+                &format!("stretching.forces_pn[{i}]"),
+                f,
+                "forces in strictly increasing order (each equilibrium continues from the previous one)",
+            ));
+        }
+    }
+    c.range(
+        "stretching.end_fraction",
+        st.end_fraction,
+        0.001,
+        0.25,
+        "a fraction of the vertices between 0.001 and 0.25 (the paper's is 0.05)",
+    )?;
+    c.range(
+        "stretching.tolerance_pn",
+        st.tolerance_pn,
+        1e-9,
+        1.0,
+        "a force in pN between 1e-9 and 1",
+    )?;
+    if st.max_iterations == 0 {
+        return Err(c.fail("stretching.max_iterations", 0, "a positive integer"));
+    }
+    Ok(())
+}
+
+/// The mesh file the scenario names, if any, must exist, be readable and have
+/// `membrane.vertices` vertices (relative to `base_dir`, which [`crate::load`] sets).
+pub(crate) fn check_files(st: &StretchingScenario, file: &str) -> Result<(), ScenarioError> {
+    let Some(m) = &st.membrane.mesh_file else {
+        return Ok(());
+    };
+    let full = st.base_dir.join(m);
+    if !full.exists() {
+        return Err(ScenarioError::Value {
+            file: file.into(),
+            key: "membrane.mesh_file".into(),
+            value: format!("{:?}", m.display().to_string()),
+            allowed: format!("an existing mesh file ({} does not exist)", full.display()),
+        });
+    }
+    // the model's parameters come from membrane.vertices (coarse-graining from N, Eqs. 8,
+    // 9, 12): a file with another vertex count would get another cell's parameters
+    let mesh = hemodpd_membrane::meshio::read_mesh(&full).map_err(|e| ScenarioError::Value {
+        file: file.into(),
+        key: "membrane.mesh_file".into(),
+        value: format!("{:?}", m.display().to_string()),
+        allowed: format!(
+            "a readable closed triangle mesh in µm (OFF, PLY or NAME.vertices.csv + NAME.triangles.csv): {e}"
+        ),
+    })?;
+    let nv = mesh.vertices.len();
+    if nv as i64 != st.membrane.vertices {
+        return Err(ScenarioError::Value {
+            file: file.into(),
+            key: "membrane.mesh_file".into(),
+            value: format!("{:?} (with {nv} vertices)", m.display().to_string()),
+            allowed: format!(
+                "a mesh with membrane.vertices = {} vertices: the model parameters are coarse-grained from N (Eqs. 8, 9, 12), so the file's {nv} vertices and membrane.vertices = {} must agree (set membrane.vertices = {nv})",
+                st.membrane.vertices, st.membrane.vertices
+            ),
+        });
+    }
+    Ok(())
+}
 
 /// Mills, Qie, Dao, Lim, Suresh (2004), healthy RBC (korali digitisation, see the file's first line):
 /// force pN, D_T, D_A, then error-bar ends D_T lo/hi, D_A lo/hi, µm.
