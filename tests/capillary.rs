@@ -660,26 +660,63 @@ fn capillary_validation_velocity_sweep() {
 }
 
 /// Part 3 of the capillary validation: N = 500 and N = 5000 give steady cell velocity and length
-/// within 5 % of each other, at 0.3 mm/s (at 1 mm/s the thermal factor f = 31 lets N = 5000's
-/// short links reach Lmax, docs/capillary.md).
+/// within 5 % of each other (the criterion), at 0.3 mm/s (at 1 mm/s the thermal factor
+/// f = 31 lets N = 5000's short links reach Lmax, docs/capillary.md), each the mean of two seeds
+/// over the last 25 ms of 100 ms of flow. Measured: velocity −2.1 %, length −6 %, with a
+/// seed-to-seed scatter of the length of ±22 % at either N: the length criterion fails
+/// (docs/validation.md).
 #[test]
 #[ignore]
 fn capillary_validation_resolution() {
     let (_figs, work) = validation_setup();
     let work = work.path();
-    let st = "stage=[{name = \"rest\", duration_s = 0.001}, {name = \"parachute\", duration_s = 0.04, mean_velocity_m_per_s = 3e-4}]";
-    let (a, _) = go(work, "n500", &[st, "output.frame_every_s=0"]);
-    let (b, _) = go(work, "n5000", &[st, "output.frame_every_s=0", "cell.vertices=5000"]);
-    let (va, vb) = (
-        q(&a, "parachute", "cell_velocity_m_per_s"),
-        q(&b, "parachute", "cell_velocity_m_per_s"),
+    let st = "stage=[{name = \"rest\", duration_s = 0.002}, {name = \"parachute\", duration_s = 0.1, mean_velocity_m_per_s = 3e-4}]";
+    let mut means = Vec::new();
+    for n in [500, 5000] {
+        let (mut v, mut l) = (Vec::new(), Vec::new());
+        for seed in [1, 2] {
+            let nv = format!("cell.vertices={n}");
+            let sd = format!("seed={seed}");
+            let (r, _) = go(
+                work,
+                &format!("n{n}_s{seed}"),
+                &[st, "output.frame_every_s=0", &nv, &sd],
+            );
+            v.push(q(&r, "parachute", "cell_velocity_m_per_s"));
+            l.push(q(&r, "parachute", "axial_length_um"));
+            eprintln!(
+                "N = {n}, seed {seed}: cell velocity {:.4e} m/s, length {:.3} µm, performance {}",
+                v[v.len() - 1],
+                l[l.len() - 1],
+                r["performance"]
+            );
+        }
+        means.push((v.iter().sum::<f64>() / 2.0, l.iter().sum::<f64>() / 2.0));
+    }
+    let ((va, la), (vb, lb)) = (means[0], means[1]);
+    eprintln!(
+        "N = 500: {va:.4e} m/s, {la:.3} µm; N = 5000: {vb:.4e} m/s, {lb:.3} µm ({:+.1} %, {:+.1} %)",
+        100.0 * (vb / va - 1.0),
+        100.0 * (lb / la - 1.0)
     );
-    let (la, lb) = (
-        q(&a, "parachute", "axial_length_um"),
-        q(&b, "parachute", "axial_length_um"),
-    );
-    eprintln!("N = 500: cell velocity {va:.4e} m/s, length {la:.3} µm; N = 5000: {vb:.4e} m/s, {lb:.3} µm ({:+.1} %, {:+.1} %)", 100.0 * (vb / va - 1.0), 100.0 * (lb / la - 1.0));
-    eprintln!("N = 5000 performance: {}", b["performance"]);
     assert!((vb / va - 1.0).abs() < 0.05, "velocity N=500 {va} N=5000 {vb}");
     assert!((lb / la - 1.0).abs() < 0.05, "length N=500 {la} N=5000 {lb}");
+}
+
+/// The same scenario on 1 and on 2 threads gives the same time series, bit for bit (pair noise
+/// and the Maxwell reflections are counter-based; bounces are applied in particle order).
+#[test]
+fn capillary_is_independent_of_the_thread_count() {
+    let s = capillary(&[
+        "stage=[{name = \"rest\", duration_s = 0.0005}, {name = \"flow\", duration_s = 0.002, mean_velocity_m_per_s = 1e-3}]",
+        "output.frame_every_s=0",
+    ]);
+    let series = |threads: usize| {
+        let dir = tempfile::tempdir().unwrap();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| run(&s, &RunContext::new(dir.path(), threads, false)))
+            .unwrap();
+        std::fs::read_to_string(dir.path().join("cell.csv")).unwrap()
+    };
+    assert_eq!(series(1), series(2));
 }

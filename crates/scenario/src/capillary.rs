@@ -980,6 +980,9 @@ fn field_grid(plan: &Plan) -> GridSpec {
     }
 }
 
+/// One measure of a [`Sample`], for the steadiness test.
+type Measure<'a> = &'a dyn Fn(&Sample) -> f64;
+
 /// A running capillary scenario (the [`Stepper`] of [`driver::drive`]).
 pub struct Run<'a> {
     plan: &'a Plan<'a>,
@@ -1089,7 +1092,7 @@ impl Run<'_> {
         let mean = |s: &[&Sample], f: &dyn Fn(&Sample) -> f64| s.iter().map(|x| f(x)).sum::<f64>() / s.len() as f64;
         let u = plan.map.velocity_to_model(plan.s.characteristic_velocity()).max(1e-12);
         let d0 = plan.map.length_to_model(plan.sys.cell_diameter_m);
-        let measures: [(&dyn Fn(&Sample) -> f64, f64); 4] = [
+        let measures: [(Measure, f64); 4] = [
             (&|s| s.cell_velocity, u),
             (&|s| s.fluid_velocity, u),
             (&|s| s.shape.axial_length, d0),
@@ -1527,8 +1530,8 @@ pub fn run_from(
     let traj = if plan.frame_every > 0 {
         Some(match checkpoint {
             Some(ck) if traj_path.exists() => {
-                TrajectoryWriter::open_append(&traj_path, ck.step / plan.frame_every * plan.frame_every)
-                    .map_err(out_err)?
+                let last_frame = ck.step.checked_div(plan.frame_every).unwrap_or(0) * plan.frame_every;
+                TrajectoryWriter::open_append(&traj_path, last_frame).map_err(out_err)?
             }
             _ => {
                 let meta = RunMetadata::new("capillary", plan.toml.clone(), s.seed, unit_system(&plan)).with_extra(

@@ -150,7 +150,7 @@ pub fn render_shapes_view(
         })
         .map(|p| p.x.abs().max(p.y.abs()).max(p.z.abs()))
         .fold(1e-12, f64::max);
-    let scale = 0.46 * pw as f64 / extent;
+    let scale = 0.44 * pw.min(ph) as f64 / extent;
     for (shape, panel) in shapes.iter().zip(panels.iter()) {
         let centre = shape.positions.iter().copied().sum::<DVec3>() / shape.positions.len().max(1) as f64;
         let pts: Vec<DVec3> = shape.positions.iter().map(|&p| view(p - centre)).collect();
