@@ -720,3 +720,35 @@ fn capillary_is_independent_of_the_thread_count() {
     };
     assert_eq!(series(1), series(2));
 }
+
+/// `--set` (and so `hemodpd sweep --vary`) reaches into the stages: `stage.1.mean_velocity_m_per_s`
+/// is the second stage's drive; a missing stage is a clear error.
+#[test]
+fn set_reaches_into_stages() {
+    let s = capillary(&["stage.1.mean_velocity_m_per_s=2e-3", "stage.2.duration_s=0.01"]);
+    let Scenario::Capillary(c) = &s else {
+        panic!("not a capillary scenario")
+    };
+    assert_eq!(c.stage[1].mean_velocity_m_per_s, Some(2e-3));
+    assert_eq!(c.stage[2].duration_s, 0.01);
+    let e = load(&scenario_path(), &["stage.7.duration_s=1".to_string()])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("stage") && e.contains("no entry 7"), "{e}");
+}
+
+/// An instability names the step, the part and the likely cause: a time step 4× the membrane's
+/// limit at f = 1 (κ/kBT exact, the membrane 31× stiffer than at the default mapping).
+#[test]
+fn instability_names_the_step_and_the_part() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = capillary(&[
+        "stage=[{name = \"rest\", duration_s = 0.002}]",
+        "model.thermal_factor=\"exact\"",
+        "model.timestep=0.01",
+        "output.frame_every_s=0",
+    ]);
+    let e = run(&s, &RunContext::new(dir.path(), 0, false)).unwrap_err().to_string();
+    assert!(e.contains("step") && e.contains("membrane"), "{e}");
+    assert!(e.contains("likely cause") && e.contains("time step"), "{e}");
+}

@@ -74,6 +74,13 @@ pub fn columns(kind: &str) -> &'static [(&'static str, &'static str, bool)] {
             ("slip lower", "/line/slip_fraction_lower", false),
             ("slip upper", "/line/slip_fraction_upper", false),
         ],
+        "capillary" => &[
+            ("cell velocity (m/s)", "/driven/cell_velocity_m_per_s", false),
+            ("fluid velocity (m/s)", "/driven/fluid_mean_velocity_m_per_s", false),
+            ("length (um)", "/driven/axial_length_um", false),
+            ("DI", "/driven/deformation_index", false),
+            ("misplaced", "/crossings/misplaced_total", false),
+        ],
         _ => &[],
     }
 }

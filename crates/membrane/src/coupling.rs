@@ -97,6 +97,30 @@ pub enum MembraneReflection {
     Maxwell,
 }
 
+impl WallRepulsion {
+    /// Energy of a vertex at `p`: strength·range/2·(1 − d/range)² within the range, else 0
+    /// (the force is its negative gradient).
+    pub fn energy(&self, p: DVec3) -> f64 {
+        let d = -self.shape.signed_distance(p);
+        if d < self.range {
+            let u = 1.0 - d.max(0.0) / self.range;
+            0.5 * self.strength * self.range * u * u
+        } else {
+            0.0
+        }
+    }
+
+    /// Force on a vertex at `p`: strength·(1 − d/range) along the inward normal within the range.
+    pub fn force(&self, p: DVec3) -> DVec3 {
+        let d = -self.shape.signed_distance(p);
+        if d < self.range {
+            -self.shape.normal(p) * (self.strength * (1.0 - d.max(0.0) / self.range))
+        } else {
+            DVec3::ZERO
+        }
+    }
+}
+
 /// Settings of a [`Cell`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct CellConfig {
@@ -596,11 +620,7 @@ impl Extension for Cell {
         }
         if let Some(w) = self.config.wall {
             for k in 0..self.x.len() {
-                let p = s.pos[first + k];
-                let d = -w.shape.signed_distance(p);
-                if d < w.range {
-                    s.force[first + k] -= w.shape.normal(p) * (w.strength * (1.0 - d.max(0.0) / w.range));
-                }
+                s.force[first + k] += w.force(s.pos[first + k]);
             }
         }
         self.timers.membrane_forces_s += t0.elapsed().as_secs_f64();

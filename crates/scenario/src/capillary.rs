@@ -1454,6 +1454,18 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             "max_abs_volume_deviation": v_max,
         }));
     }
+    // the last driven stage's means: the headline of a run (what sweeps tabulate)
+    let driven = plan
+        .s
+        .stage
+        .iter()
+        .rposition(|st| st.drive() != Drive::Off)
+        .map(|k| {
+            let mut d = stages[k]["final_quarter_means"].clone();
+            d["stage"] = json!(plan.s.stage[k].name);
+            d
+        })
+        .unwrap_or(serde_json::Value::Null);
     let timers = cell.timers();
     let secs = run.st.stepping_seconds + run.clock.elapsed().as_secs_f64();
     let steps = run.sim.step_count() as f64;
@@ -1475,6 +1487,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
         },
         "mesh": run.mesh_info,
         "stages": stages,
+        "driven": driven,
         "crossings": {
             "bounces": stats.bounces,
             "checks": stats.checks,

@@ -281,7 +281,8 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
 }
 
 /// Applies `a.b.c=value` to the table. The value is parsed as TOML (numbers, booleans, arrays,
-/// quoted strings); anything that does not parse is taken as a bare string.
+/// quoted strings); anything that does not parse is taken as a bare string. A number in the path
+/// indexes an array of tables: `stage.1.mean_velocity_m_per_s=2e-3` sets the second `[[stage]]`.
 fn apply_set(table: &mut toml::Table, assignment: &str) -> Result<(), ScenarioError> {
     let bad = |m: &str| ScenarioError::Override {
         assignment: assignment.to_string(),
@@ -297,13 +298,35 @@ fn apply_set(table: &mut toml::Table, assignment: &str) -> Result<(), ScenarioEr
         Err(_) => toml::Value::String(raw.trim().to_string()),
     };
     let parts: Vec<&str> = key.split('.').collect();
+    // walk the path: a table key, or a key and an index into an array of tables
+    // (`stage.1.duration_s`: the second [[stage]])
     let mut cur = table;
-    for p in &parts[..parts.len() - 1] {
+    let last = parts.len() - 1;
+    let mut k = 0;
+    while k < last {
+        let p = parts[k];
+        if k + 1 < last {
+            if let Ok(i) = parts[k + 1].parse::<usize>() {
+                let arr = cur
+                    .get_mut(p)
+                    .and_then(|v| v.as_array_mut())
+                    .ok_or_else(|| bad(&format!("`{p}` is not an array (of [[{p}]] tables) to index")))?;
+                let len = arr.len();
+                cur = arr
+                    .get_mut(i)
+                    .ok_or_else(|| bad(&format!("`{p}` has {len} entries, no entry {i} (indices start at 0)")))?
+                    .as_table_mut()
+                    .ok_or_else(|| bad(&format!("`{p}.{i}` is not a table")))?;
+                k += 2;
+                continue;
+            }
+        }
         cur = cur
             .entry(p.to_string())
             .or_insert_with(|| toml::Value::Table(toml::Table::new()))
             .as_table_mut()
             .ok_or_else(|| bad(&format!("`{p}` is not a table")))?;
+        k += 1;
     }
     cur.insert(parts[parts.len() - 1].to_string(), value);
     Ok(())

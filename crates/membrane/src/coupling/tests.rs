@@ -337,3 +337,58 @@ fn cell_pushed_against_the_wall_stays_out_of_it() {
     );
     assert_eq!(cell.stats().misplaced, 0);
 }
+
+/// The wall repulsion is the negative gradient of its energy (central differences, h = 1e-6,
+/// at points spread over the range of a tube wall and of a plate).
+#[test]
+fn wall_repulsion_is_the_gradient_of_its_energy() {
+    use hemodpd_engine::WallShape;
+    let shapes = [
+        WallShape::Cylinder {
+            axis: 2,
+            centre: [7.0, 7.0],
+            radius: 5.0,
+        },
+        WallShape::Plates {
+            axis: 2,
+            lower: 1.0,
+            upper: 9.0,
+            period: 12.0,
+            lower_velocity: DVec3::ZERO,
+            upper_velocity: DVec3::ZERO,
+        },
+    ];
+    for shape in shapes {
+        let w = WallRepulsion {
+            shape,
+            range: 0.3,
+            strength: 100.0,
+        };
+        let mut tested = 0;
+        for k in 0..200 {
+            let a = k as f64 * 0.731;
+            // points near the upper/outer wall, from 0.35 to 0.01 inside it
+            let depth = 0.35 - 0.34 * (k as f64 / 199.0);
+            let p = match shape {
+                WallShape::Cylinder { .. } => {
+                    DVec3::new(7.0 + (5.0 - depth) * a.cos(), 7.0 + (5.0 - depth) * a.sin(), 0.3 * a)
+                }
+                WallShape::Plates { .. } => DVec3::new(a, 0.5 * a, 9.0 - depth),
+            };
+            let h = 1e-6;
+            let grad = DVec3::new(
+                (w.energy(p + DVec3::X * h) - w.energy(p - DVec3::X * h)) / (2.0 * h),
+                (w.energy(p + DVec3::Y * h) - w.energy(p - DVec3::Y * h)) / (2.0 * h),
+                (w.energy(p + DVec3::Z * h) - w.energy(p - DVec3::Z * h)) / (2.0 * h),
+            );
+            let f = w.force(p);
+            assert!(
+                (f + grad).length() <= 1e-6 * f.length().max(1.0),
+                "{shape:?} at {p}: force {f}, −∇E {}",
+                -grad
+            );
+            tested += (f.length() > 0.0) as usize;
+        }
+        assert!(tested > 150, "only {tested} points inside the range");
+    }
+}
