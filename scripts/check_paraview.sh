@@ -6,7 +6,9 @@
 #      XDMF 3 (.xmf3, Xdmf3ReaderS) files give every frame, block, point, cell and array value
 #      expected, and renders a screenshot of frame 2 (checked to be a non-empty PNG);
 #   2. runs a small `hemodpd run scenarios/dpd-fluid.toml` and checks its trajectory's frames
-#      and particle count in ParaView.
+#      and particle count in ParaView;
+#   3. runs a short capillary scenario and checks its frames, the membrane (500 vertices, 996
+#      triangles, velocities) and the binned fluid fields (density, velocity) in ParaView.
 # Needs pvpython and xvfb-run (Debian: apt-get install paraview python3-paraview xvfb xauth).
 # Without them it prints "NOT RUN" and exits with status 2 (not 0: it did not check anything).
 # Everything is written under a temporary directory (or $1 if given), never into the source tree.
@@ -34,8 +36,15 @@ case "$profile" in dev|test) bindir=debug ;; *) bindir="$profile" ;; esac
 # 4 x 4 x 4 rc at density 3: 192 particles; frames at production steps 0, 10, ..., 40
 xvfb-run -a pvpython scripts/check_paraview.py "$work/pv" "$nv" "$nt" "$nf" "$work/frame2.png" \
   "$work/fluid/trajectory.xmf" 5 192 >"$work/pvpython.log" 2>&1 || true
+# 3. a short capillary run: membrane frames and the binned fluid fields
+"$target_dir/$bindir/hemodpd" run scenarios/capillary.toml --quiet --threads 2 --out "$work/capillary" \
+  --set 'stage=[{name = "rest", duration_s = 0.001}, {name = "flow", duration_s = 0.002, mean_velocity_m_per_s = 1e-3}]' \
+  --set output.frame_every_s=0.001
+# frames at 0, 1, 2, 3 ms (199 steps each; 597 steps in all)
+xvfb-run -a -s "-screen 0 1024x768x24" pvpython scripts/check_paraview_capillary.py "$work/capillary/trajectory.xmf" 4 500 996 \
+  "$work/capillary.png" >>"$work/pvpython.log" 2>&1 || true
 cat "$work/pvpython.log"
-if grep -q '^PV-OK' "$work/pvpython.log"; then
+if grep -q '^PV-OK' "$work/pvpython.log" && grep -q '^PV-CAPILLARY-OK' "$work/pvpython.log"; then
   echo "check_paraview: PASSED (screenshot $work/frame2.png)"
 else
   echo "check_paraview: FAILED (log in $work/pvpython.log)" >&2
