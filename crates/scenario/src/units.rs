@@ -106,8 +106,8 @@ pub struct FluidModel {
 }
 
 impl FluidModel {
-    /// The capillary fluid ([`PairParams::capillary`]: a = 25, γ = 40, s = 1/4, ρ = 3,
-    /// Δt = 0.005, η measured, c ≈ 4.02).
+    /// The capillary fluid ([`PairParams::capillary`]: a = 25, γ = 120, s = 1/4, ρ = 3,
+    /// Δt = 0.0025, η measured (26.6), c ≈ 4.02).
     pub fn capillary() -> Self {
         let pair = PairParams::capillary();
         Self {
@@ -994,11 +994,12 @@ mod tests {
         let e = key(&sys, &fluid, 1e-6, ThermalChoice::Exact);
         assert_eq!(e.key(), "velocity_m_s");
         assert!(e.to_string().contains("Mach"), "{e}");
+        // f = 10, below the 10.84 that Mach 0.25 needs at 1 mm/s: Mach 0.27
         let e = key(&sys, &fluid, 1e-6, ThermalChoice::Factor(10.0));
         assert_eq!(e.key(), "velocity_m_s");
-        // a 20 µm tube at Mach 0.25: Re ≈ 6.5 > 5
+        // a 50 µm tube at Mach 0.25: Re ≈ 5.7 > 5 (Re ∝ D at a fixed Mach; the 10 µm tube has 1.13)
         let mut wide = sys.clone();
-        wide.tube_diameter_m = 20e-6;
+        wide.tube_diameter_m = 50e-6;
         let e = key(&wide, &fluid, 1e-6, ThermalChoice::default());
         assert_eq!(e.key(), "velocity_m_s");
         assert!(e.to_string().contains("Reynolds"), "{e}");
