@@ -271,11 +271,27 @@ fn plasma_tube_gives_the_poiseuille_velocity_in_si() {
     // the wall where the capillary scenario puts it: its effective no-slip radius is R
     let wall = hemodpd_scenario::capillary::wall_radius(radius, hemodpd_engine::params::CAPILLARY_FLUID_WALL_SLIP);
     let g = map.pressure_gradient_to_model(g_si) / fluid.density;
+    // flux over the tube's cross-section πR²
+    let (_, q) = capillary_fluid_tube(wall, g, 6000, 3);
+    let u_model = q / (std::f64::consts::PI * radius * radius);
+    let u = map.velocity_to_si(u_model);
+    eprintln!(
+        "mean velocity {u:.5e} m/s against Poiseuille {u_si:.5e} m/s ({:+.2} %)",
+        100.0 * (u / u_si - 1.0)
+    );
+    assert!((u / u_si - 1.0).abs() < 0.03, "{u} vs {u_si}");
+}
+
+/// The capillary fluid alone in a poiseuille-tube run (model units, wall at `wall` rc, tube
+/// 8 rc long, body force `g`, no adaptive wall force): returns (mean density n̄ in the tube, the
+/// volume flux Q, from the radial profile: Σ ρ_k v_k A_k / n̄).
+fn capillary_fluid_tube(wall: f64, g: f64, steps: u64, seed: u64) -> (f64, f64) {
+    let fluid = FluidModel::capillary();
     let p = fluid.pair;
     let text = format!(
         r#"format_version = 1
 kind = "poiseuille-tube"
-seed = 3
+seed = {seed}
 [fluid]
 density = {}
 a = {}
@@ -292,7 +308,7 @@ adaptive = false
 timestep = {}
 equilibration_steps = 200
 flow_steps = 2000
-steps = 6000
+steps = {steps}
 sample_every = 5
 profile_bins = 10
 measure_overhead = false
@@ -315,15 +331,8 @@ measure_overhead = false
         flux += f(&rho[k]) * f(&v[k]) * area;
         mass += f(&rho[k]) * area;
     }
-    // flux over the tube's cross-section πR² (volume flux: mass flux over the mean density)
     let n_mean = mass / (std::f64::consts::PI * wall * wall);
-    let u_model = flux / n_mean / (std::f64::consts::PI * radius * radius);
-    let u = map.velocity_to_si(u_model);
-    eprintln!(
-        "mean velocity {u:.5e} m/s against Poiseuille {u_si:.5e} m/s ({:+.2} %)",
-        100.0 * (u / u_si - 1.0)
-    );
-    assert!((u / u_si - 1.0).abs() < 0.03, "{u} vs {u_si}");
+    (n_mean, flux / n_mean)
 }
 
 /// `hemodpd analyze` recomputes the run's measures from the trajectory: at the steps where a
@@ -772,56 +781,12 @@ fn capillary_fluid_wall_slip() {
         CAPILLARY_FLUID_VISCOSITY as ETA, CAPILLARY_FLUID_VISCOSITY_SE as ETA_SE, CAPILLARY_FLUID_WALL_SLIP,
     };
     let fluid = FluidModel::capillary();
-    let p = fluid.pair;
     let radius = 5.0;
     let g = 0.5 * 8.0 * ETA / (fluid.density * radius * radius);
     let mut excess = Vec::new();
     for seed in [1u64, 2, 3, 4] {
-        let text = format!(
-            r#"format_version = 1
-kind = "poiseuille-tube"
-seed = {seed}
-[fluid]
-density = {}
-a = {}
-gamma = {}
-kbt = {}
-weight_exponent = {}
-[tube]
-radius = {radius}
-length = 8.0
-body_force = {g}
-[walls]
-adaptive = false
-[run]
-timestep = {}
-equilibration_steps = 200
-flow_steps = 2000
-steps = 60000
-sample_every = 5
-profile_bins = 10
-measure_overhead = false
-"#,
-            fluid.density, p.a, p.gamma, p.kbt, p.s, fluid.timestep
-        );
-        let s = load_str(&text, "slip.toml", &[]).unwrap();
-        let dir = tempfile::tempdir().unwrap();
-        let r = run(&s, &RunContext::new(dir.path(), 0, false)).unwrap();
-        let prof = &r["profile"];
-        let (rs, v, rho) = (
-            prof["r"].as_array().unwrap(),
-            prof["v_z"].as_array().unwrap(),
-            prof["density"].as_array().unwrap(),
-        );
-        let dr = radius / rs.len() as f64;
-        let (mut flux, mut mass) = (0.0, 0.0);
-        for k in 0..rs.len() {
-            let area = std::f64::consts::PI * dr * dr * (((k + 1) * (k + 1) - k * k) as f64);
-            flux += f(&rho[k]) * f(&v[k]) * area;
-            mass += f(&rho[k]) * area;
-        }
-        let n_mean = mass / (std::f64::consts::PI * radius * radius);
-        let u = flux / mass;
+        let (n_mean, q) = capillary_fluid_tube(radius, g, 60000, seed);
+        let u = q / (std::f64::consts::PI * radius * radius);
         let u_p = g * n_mean * radius * radius / (8.0 * ETA);
         let e = u / u_p - 1.0;
         eprintln!(

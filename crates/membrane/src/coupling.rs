@@ -480,6 +480,18 @@ impl Cell {
         let mass: Vec<f64> = s.field.types().iter().map(|t| t.mass).collect();
         let (reflection, kbt, ids) = (self.config.reflection, self.config.kbt, s.id);
         let key = hemodpd_engine::rng::step_key(self.config.seed ^ MAXWELL_SALT, s.step);
+        // triangle `ti` over the step, from the unwrapped vertex positions
+        let moving = |ti: u32| {
+            let t = &tris[ti as usize];
+            MovingTriangle {
+                a0: x0[t[0] as usize],
+                b0: x0[t[1] as usize],
+                c0: x0[t[2] as usize],
+                a1: x1[t[0] as usize],
+                b1: x1[t[1] as usize],
+                c1: x1[t[2] as usize],
+            }
+        };
         let events: Vec<BounceEvent> = self
             .candidates
             .par_iter()
@@ -506,16 +518,7 @@ impl Cell {
                                 if plo.cmpgt(bhi).any() || phi.cmplt(blo).any() {
                                     continue;
                                 }
-                                let t = &tris[ti as usize];
-                                let mt = MovingTriangle {
-                                    a0: x0[t[0] as usize],
-                                    b0: x0[t[1] as usize],
-                                    c0: x0[t[2] as usize],
-                                    a1: x1[t[0] as usize],
-                                    b1: x1[t[1] as usize],
-                                    c1: x1[t[2] as usize],
-                                };
-                                if let Some(cr) = mesh_bounce::crossing(p0, p1, &mt) {
+                                if let Some(cr) = mesh_bounce::crossing(p0, p1, &moving(ti)) {
                                     if best.is_none_or(|b| cr.t < b.0) {
                                         best = Some((cr.t, ti));
                                     }
@@ -525,15 +528,7 @@ impl Cell {
                     }
                 }
                 let (_, ti) = best?;
-                let t = &tris[ti as usize];
-                let mt = MovingTriangle {
-                    a0: x0[t[0] as usize],
-                    b0: x0[t[1] as usize],
-                    c0: x0[t[2] as usize],
-                    a1: x1[t[0] as usize],
-                    b1: x1[t[1] as usize],
-                    c1: x1[t[2] as usize],
-                };
+                let mt = moving(ti);
                 let m = mass[ptype[iu] as usize];
                 let b = mesh_bounce::bounce(p0, v, m, dt, &mt)?;
                 // Not advanced for the rest of the step (a reflected path may meet a neighbouring
