@@ -663,6 +663,27 @@ fn capillary_validation_velocity_sweep() {
         )
         .unwrap();
     }
+    // Hochmuth's nearest tube, 10.7 µm, at the velocities where our ranges meet theirs
+    for u in [0.6e-3, 1.0e-3] {
+        let st = format!("stage=[{{name = \"rest\", duration_s = 0.001}}, {{name = \"parachute\", duration_s = 0.04, mean_velocity_m_per_s = {u}}}]");
+        let (r, _) = go(
+            work,
+            &format!("d10.7_u{u}"),
+            &[
+                &st,
+                "tube.diameter_um=10.7",
+                "model.thermal_factor=10.841",
+                "output.frame_every_s=0",
+            ],
+        );
+        eprintln!(
+            "D = 10.7 µm, mean U {:.1} mm/s: cell velocity {:.4} cm/s, length {:.2} µm, DI {:.3}",
+            u * 1e3,
+            q(&r, "parachute", "cell_velocity_m_per_s") * 100.0,
+            q(&r, "parachute", "axial_length_um"),
+            q(&r, "parachute", "deformation_index")
+        );
+    }
     assert!(
         table.windows(2).all(|w| w[1].2 > w[0].2 - 0.2),
         "length not growing with velocity: {table:?}"
