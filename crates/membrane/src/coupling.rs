@@ -631,25 +631,6 @@ impl Extension for Cell {
             self.stats.misplaced += wrong;
             self.stats.misplaced_last = wrong;
             self.stats.checked_last = tested;
-            if wrong > 0 && std::env::var_os("HEMODPD_DEBUG_CROSSINGS").is_some() {
-                let (lo, hi) = bounds(self.x.iter());
-                let c = 0.5 * (lo + hi);
-                for i in 0..s.pos.len() {
-                    let t = s.ptype[i];
-                    if t != self.config.inner_type && t != self.config.outer_type {
-                        continue;
-                    }
-                    let q = c + s.domain.min_image(s.pos[i], c);
-                    let wn = winding_number(q, &self.x, self.model.triangles());
-                    if (t == self.config.inner_type) != (wn > 0.5) {
-                        let dmin = self.x.iter().map(|v| (*v - q).length()).fold(f64::INFINITY, f64::min);
-                        eprintln!(
-                            "misplaced: step {} particle {i} type {t} winding {wn:.3} nearest vertex {dmin:.3} v {}",
-                            s.step, s.vel[i]
-                        );
-                    }
-                }
-            }
             self.timers.checks_s += t0.elapsed().as_secs_f64();
         }
         Ok(())

@@ -952,7 +952,7 @@ pub struct Controller {
 
 /// The run's evolving state besides the simulation (checkpointed as JSON).
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
-pub struct Progress {
+pub struct ProtocolState {
     pub stage: usize,
     /// Step at which the current stage began.
     pub stage_start: u64,
@@ -989,7 +989,7 @@ pub struct Run<'a> {
     sim: CapillarySim,
     rest: Mesh,
     profile: RestProfile,
-    st: Progress,
+    st: ProtocolState,
     traj: Option<TrajectoryWriter>,
     grid: GridSpec,
     mesh_info: serde_json::Value,
@@ -1302,7 +1302,7 @@ impl Run<'_> {
     }
 }
 
-fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, Progress, serde_json::Value), RunError> {
+fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, ProtocolState, serde_json::Value), RunError> {
     let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
     let kind = ck.scalar_str("scenario_kind").map_err(bad)?;
     if kind != "capillary" {
@@ -1337,7 +1337,7 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, Progress
         step: ck.step,
     };
     let mut sim = Simulation::from_state(state, (Timed::new(walls_ext), cell)).map_err(engine_err)?;
-    let st: Progress = crate::channel::json_from_checkpoint(ck, "progress_json")?;
+    let st: ProtocolState = crate::channel::json_from_checkpoint(ck, "progress_json")?;
     let f = DVec3::new(0.0, 0.0, st.body_force);
     sim.set_body_force(OUTER as usize, f).map_err(engine_err)?;
     sim.set_body_force(INNER as usize, f).map_err(engine_err)?;
@@ -1536,7 +1536,7 @@ pub fn run_from(
         Some(ck) => restore(&plan, ck)?,
         None => {
             let (sim, rest, info) = build(&plan)?;
-            (sim, rest, Progress::default(), info)
+            (sim, rest, ProtocolState::default(), info)
         }
     };
     let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
