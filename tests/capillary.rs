@@ -768,11 +768,12 @@ fn set_reaches_into_stages() {
     assert!(e.contains("stage") && e.contains("no entry 7"), "{e}");
 }
 
-/// An instability names the step, the part and the likely cause: the largest time step the
-/// fluid allows with f = 1 (κ/kBT exact, the membrane 11× stiffer than at the default mapping)
-/// and the stiffest area constraint allowed (1 N/m, 500× the default).
+/// A time step the membrane cannot take is refused before the fluid is built: the dry run of
+/// the membrane alone names `model.timestep`, the step it failed at, the likely cause and the
+/// largest halving that passed. Here f = 1 (κ/kBT exact, the membrane 11× stiffer than at the
+/// default mapping) and the stiffest area constraint allowed (1 N/m, 500× the default).
 #[test]
-fn instability_names_the_step_and_the_part() {
+fn membrane_timestep_is_checked_before_the_run() {
     let dir = tempfile::tempdir().unwrap();
     let s = capillary(&[
         "stage=[{name = \"rest\", duration_s = 0.002}]",
@@ -781,9 +782,53 @@ fn instability_names_the_step_and_the_part() {
         "cell.area_constraint_n_per_m=1.0",
         "output.frame_every_s=0",
     ]);
+    let t = std::time::Instant::now();
     let e = run(&s, &RunContext::new(dir.path(), 0, false)).unwrap_err().to_string();
-    assert!(e.contains("step") && e.contains("membrane"), "{e}");
-    assert!(e.contains("likely cause") && e.contains("time step"), "{e}");
+    assert!(
+        e.contains("model.timestep") && e.contains("membrane") && e.contains("step"),
+        "{e}"
+    );
+    assert!(e.contains("likely cause") && e.contains("set model.timestep ≤"), "{e}");
+    // the advice works: that time step passes the check and the run starts
+    let dt: f64 = e
+        .split("set model.timestep ≤ ")
+        .nth(1)
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(dt < 0.004);
+    let ok = capillary(&[
+        "stage=[{name = \"rest\", duration_s = 0.00005}]",
+        "model.thermal_factor=\"exact\"",
+        &format!("model.timestep={dt}"),
+        "cell.area_constraint_n_per_m=1.0",
+        "output.frame_every_s=0",
+    ]);
+    run(&ok, &RunContext::new(dir.path().join("ok"), 0, false)).unwrap();
+    eprintln!("{e} ({:.1} s)", t.elapsed().as_secs_f64());
+}
+
+/// An instability mid-run names the step, the part and the likely cause.
+#[test]
+fn instability_names_the_step_and_the_part() {
+    let e = hemodpd_engine::EngineError::TooFast {
+        step: 17,
+        id: 3,
+        index: 15_000,
+        ptype: hemodpd_scenario::capillary::MEMBRANE,
+        displacement: 1.2,
+        cell: 1.0,
+        velocity: "[0, 0, 480]".into(),
+        cause: "time step too large",
+    };
+    let m = hemodpd_scenario::capillary::describe_engine_error(e).to_string();
+    assert!(
+        m.contains("step 17") && m.contains("membrane vertex") && m.contains("likely cause"),
+        "{m}"
+    );
 }
 
 /// The measurement behind `CAPILLARY_FLUID_WALL_SLIP`: the capillary fluid in a tube whose

@@ -637,5 +637,57 @@ impl Extension for Cell {
     }
 }
 
+/// A dry run of the membrane alone (no fluid, no damping): the vertices start at `rest` with
+/// thermal velocities of `kbt`/`mass` (a fixed stream, so the answer is reproducible) and are
+/// integrated by velocity Verlet for `steps` steps of `dt`. Returns the step at which it failed
+/// (a force error such as a link reaching Lmax, or the kinetic energy growing 100-fold), or
+/// `None` if it stayed stable. Velocity Verlet is stable for dt·ω_max < 2, so a failure here
+/// means the time step cannot resolve the membrane's stiffest mode, whatever the fluid adds.
+pub fn dry_run(model: &MembraneModel, rest: &[DVec3], dt: f64, kbt: f64, mass: f64, steps: u64) -> Option<u64> {
+    let n = rest.len();
+    let mut x = rest.to_vec();
+    let mut v = vec![DVec3::ZERO; n];
+    let sd = (kbt / mass).sqrt();
+    let mut z = 0x2545_f491_4f6c_dd1du64;
+    let mut gauss = || {
+        let mut u = || {
+            z = hemodpd_engine::rng::mix64(z.wrapping_add(0x9E37_79B9_7F4A_7C15));
+            ((z >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
+        let (a, b) = (u(), u());
+        (-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()
+    };
+    for vi in v.iter_mut() {
+        *vi = DVec3::new(gauss(), gauss(), gauss()) * sd;
+    }
+    let mean = v.iter().fold(DVec3::ZERO, |a, b| a + *b) / n.max(1) as f64;
+    v.iter_mut().for_each(|vi| *vi -= mean);
+    let kinetic = |v: &[DVec3]| v.iter().map(|u| u.length_squared()).sum::<f64>();
+    let k0 = kinetic(&v).max(1e-300);
+    let mut f = vec![DVec3::ZERO; n];
+    if model.add_forces(&x, &mut f).is_err() {
+        return Some(0);
+    }
+    let h = 0.5 * dt / mass;
+    for step in 1..=steps {
+        for k in 0..n {
+            v[k] += f[k] * h;
+            x[k] += v[k] * dt;
+        }
+        f.iter_mut().for_each(|fk| *fk = DVec3::ZERO);
+        if model.add_forces(&x, &mut f).is_err() {
+            return Some(step);
+        }
+        for k in 0..n {
+            v[k] += f[k] * h;
+        }
+        let k = kinetic(&v);
+        if !k.is_finite() || k > 100.0 * k0 {
+            return Some(step);
+        }
+    }
+    None
+}
+
 #[cfg(test)]
 mod tests;

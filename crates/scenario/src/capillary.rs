@@ -813,7 +813,7 @@ fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
 }
 
 /// An engine error with the particle type named (membrane vertex, fluid particle, ...).
-fn step_err(e: hemodpd_engine::EngineError) -> RunError {
+pub fn describe_engine_error(e: hemodpd_engine::EngineError) -> RunError {
     use hemodpd_engine::EngineError as E;
     let part = |t: u16| match t {
         OUTER => "a plasma particle",
@@ -839,7 +839,40 @@ fn step_err(e: hemodpd_engine::EngineError) -> RunError {
 pub type CapillarySim = Simulation<(Timed<Walls>, Cell)>;
 
 /// Builds the simulation at step 0.
+/// Steps of the membrane's dry run before a capillary run ([`hemodpd_membrane::coupling::dry_run`]).
+const DRY_RUN_STEPS: u64 = 400;
+
+/// Checks, before any fluid is built, that the time step resolves the membrane: a dry run of
+/// the membrane alone at the fluid's kBT. On failure the error names `model.timestep`, the
+/// step the dry run failed at and the largest time step (halving) that passed.
+fn check_membrane_timestep(plan: &Plan, model: &MembraneModel, rest: &Mesh) -> Result<(), RunError> {
+    let (kbt, mass) = (plan.fluid.pair.kbt, 1.0);
+    let dry = |dt: f64| hemodpd_membrane::coupling::dry_run(model, &rest.vertices, dt, kbt, mass, DRY_RUN_STEPS);
+    let Some(step) = dry(plan.dt) else {
+        return Ok(());
+    };
+    let mut dt = plan.dt;
+    let stable = (0..8).find_map(|_| {
+        dt *= 0.5;
+        dry(dt).is_none().then_some(dt)
+    });
+    let advice = match stable {
+        Some(dt) => format!("set model.timestep ≤ {dt:.2e} (the largest halving of it that passed)"),
+        None => "no time step down to 1/256 of it passed: check cell.area_constraint_n_per_m and cell.volume_constraint_n_per_m2".into(),
+    };
+    Err(RunError::Output(format!(
+        "model.timestep = {} is too large for the membrane: a dry run of the membrane alone (no fluid, thermal velocities) became unstable at step {step} of {DRY_RUN_STEPS}; likely cause: the time step cannot resolve the membrane's stiffest mode (its moduli in model units grow as the thermal factor falls: f = {:.3}); {advice}",
+        plan.dt, plan.map.thermal_factor
+    )))
+}
+
 fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunError> {
+    {
+        // before the fluid is built: cheap, and it names the fix
+        let (rest, _) = plan.rest_mesh()?;
+        let model = plan.model(&rest)?;
+        check_membrane_timestep(plan, &model, &rest)?;
+    }
     let config = plan.config();
     let setup = WallSetup {
         shape: plan.shape,
@@ -870,7 +903,8 @@ fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunErro
     }
     let walls_ext = Walls::new(plan.shape, plan.wall_config()).map_err(engine_err)?;
     let cell = Cell::new(model, plan.cell_config(first), rest.vertices.clone()).map_err(engine_err)?;
-    let sim = Simulation::with_extension(config, field, p, (Timed::new(walls_ext), cell)).map_err(step_err)?;
+    let sim =
+        Simulation::with_extension(config, field, p, (Timed::new(walls_ext), cell)).map_err(describe_engine_error)?;
     Ok((sim, rest, info))
 }
 
@@ -1140,7 +1174,7 @@ impl Stepper for Run<'_> {
     }
 
     fn advance(&mut self) -> Result<(), RunError> {
-        self.sim.step().map_err(step_err)?;
+        self.sim.step().map_err(describe_engine_error)?;
         self.control()?;
         let step = self.sim.step_count();
         let plan = self.plan;
