@@ -1737,3 +1737,30 @@ pub fn write_measures_csv(path: &std::path::Path, rows: &[FrameMeasures]) -> Res
         source,
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The 1/e time of an exponential decay towards a level, from samples.
+    #[test]
+    fn decay_time_of_an_exponential() {
+        let t: Vec<f64> = (0..400).map(|k| 0.1 + k as f64 * 1e-4).collect();
+        let y: Vec<f64> = t.iter().map(|&t| 0.2 + 0.5 * (-(t - 0.1) / 0.004).exp()).collect();
+        let tau = decay_time(&t, &y);
+        assert!((tau - 0.004).abs() < 2e-5, "{tau}");
+        // a flat series does not decay
+        assert!(decay_time(&t, &vec![1.0; 400]).is_nan());
+    }
+
+    /// The wall radius carries the no-slip flux of the physical radius: R_w⁴(1 + 4b/R_w) = R⁴.
+    #[test]
+    fn wall_radius_carries_the_physical_flux() {
+        for (r, b) in [(5.0, 0.194), (3.0, 0.1), (10.0, 0.3)] {
+            let w = wall_radius(r, b);
+            let lhs = w.powi(4) * (1.0 + 4.0 * b / w);
+            assert!((lhs / r.powi(4) - 1.0).abs() < 1e-12, "{r} {b}: {w}");
+            assert!(w < r && w > r - 1.5 * b);
+        }
+    }
+}
