@@ -204,6 +204,10 @@ pub struct Cell {
     grid_items: Vec<u32>,
     /// Swept bounding box of each triangle over the step being taken.
     tri_boxes: Vec<(DVec3, DVec3)>,
+    /// Fill cursor per grid cell while binning the triangles.
+    grid_fill: Vec<u32>,
+    /// Mass of each particle type (read from the force field at the first step).
+    masses: Vec<f64>,
 }
 
 /// Bounding box of a set of points.
@@ -308,6 +312,8 @@ impl Cell {
             grid_start: Vec::new(),
             grid_items: Vec::new(),
             tri_boxes: Vec::new(),
+            grid_fill: Vec::new(),
+            masses: Vec::new(),
         })
     }
 
@@ -461,7 +467,9 @@ impl Cell {
         }
         self.grid_items.clear();
         self.grid_items.resize(self.grid_start[grid.len()] as usize, 0);
-        let mut fill: Vec<u32> = self.grid_start[..grid.len()].to_vec();
+        self.grid_fill.clear();
+        self.grid_fill.extend_from_slice(&self.grid_start[..grid.len()]);
+        let fill = &mut self.grid_fill;
         for (ti, &(a, b)) in self.tri_boxes.iter().enumerate() {
             let r = grid.range(a, b);
             for k in r[2].0..=r[2].1 {
@@ -477,7 +485,10 @@ impl Cell {
         // 3. the earliest crossing of each candidate, in parallel; applied in particle order
         let (start, items, boxes) = (&self.grid_start, &self.grid_items, &self.tri_boxes);
         let (pos, vel, ptype) = (&*s.pos, &*s.vel, s.ptype);
-        let mass: Vec<f64> = s.field.types().iter().map(|t| t.mass).collect();
+        if self.masses.len() != s.field.ntypes() {
+            self.masses = s.field.types().iter().map(|t| t.mass).collect();
+        }
+        let mass = &self.masses;
         let (reflection, kbt, ids) = (self.config.reflection, self.config.kbt, s.id);
         let key = hemodpd_engine::rng::step_key(self.config.seed ^ MAXWELL_SALT, s.step);
         // triangle `ti` over the step, from the unwrapped vertex positions
