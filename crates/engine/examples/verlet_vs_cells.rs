@@ -73,7 +73,15 @@ impl CellsEval {
     fn eval(&mut self, p: &Particles, key: u64, out: &mut [DVec3]) {
         let vel = &p.vel;
         self.cl.build(&p.pos, &p.ptype, &p.id, |i| vel[i]);
-        pairs::compute(ForceScheme::HalfShell, &self.cl, &self.table, key, &mut self.sf, false);
+        pairs::compute(
+            ForceScheme::HalfShell,
+            &self.cl,
+            &self.table,
+            key,
+            &mut self.sf,
+            false,
+            None,
+        );
         for (f, &k) in out.iter_mut().zip(self.cl.inverse()) {
             *f = self.sf[k as usize];
         }

@@ -61,6 +61,12 @@ impl CellGrid {
         })
     }
 
+    /// The box edge lengths the grid divides.
+    #[inline]
+    pub fn lengths(&self) -> DVec3 {
+        self.lengths
+    }
+
     /// Total number of cells.
     #[inline]
     pub fn ncells(&self) -> usize {

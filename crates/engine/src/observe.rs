@@ -75,6 +75,49 @@ pub fn pressure_tensor(p: &Particles, field: &ForceField, domain: &PeriodicBox, 
     (k + *virial) * (1.0 / domain.volume())
 }
 
+/// The streaming velocity of Lees–Edwards shear: u(x) = (γ̇ y + c) x̂ with c the mass-weighted
+/// mean of v_x − γ̇ y over the mobile particles. Σ m (v_x − γ̇ y) is an invariant of the
+/// dynamics (a crossing changes v_x by ∓U = ∓γ̇ Ly and y by ∓Ly; pair forces conserve
+/// momentum) while Σ m v_y = 0, so c stays at its initial value.
+pub fn shear_streaming_offset(p: &Particles, field: &ForceField, shear_rate: Real) -> Real {
+    let types = field.types();
+    let (mut s, mut m) = (0.0, 0.0);
+    for ((x, v), &t) in p.pos.iter().zip(&p.vel).zip(&p.ptype) {
+        let ty = &types[t as usize];
+        if !ty.frozen {
+            s += ty.mass * (v.x - shear_rate * x.y);
+            m += ty.mass;
+        }
+    }
+    if m > 0.0 {
+        s / m
+    } else {
+        0.0
+    }
+}
+
+/// Pressure tensor with the kinetic part taken from the velocities relative to
+/// `mean_vel(position)` (for a flow such as shear: P = (Σ m v' ⊗ v' + W)/V, v' = v − u(x)).
+pub fn peculiar_pressure_tensor(
+    p: &Particles,
+    field: &ForceField,
+    domain: &PeriodicBox,
+    virial: &DMat3,
+    mean_vel: impl Fn(DVec3) -> DVec3,
+) -> DMat3 {
+    let types = field.types();
+    let mut k = DMat3::ZERO;
+    for ((x, v), &t) in p.pos.iter().zip(&p.vel).zip(&p.ptype) {
+        let ty = &types[t as usize];
+        if !ty.frozen {
+            let w = *v - mean_vel(*x);
+            let mw = w * ty.mass;
+            k += DMat3::from_cols(mw * w.x, mw * w.y, mw * w.z);
+        }
+    }
+    (k + *virial) * (1.0 / domain.volume())
+}
+
 /// Scalar pressure p = tr(P)/3.
 pub fn pressure(p: &Particles, field: &ForceField, domain: &PeriodicBox, virial: &DMat3) -> Real {
     let t = pressure_tensor(p, field, domain, virial);

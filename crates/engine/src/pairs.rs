@@ -5,6 +5,16 @@
 //! Both schemes produce results that do not depend on the number of threads: the work is split
 //! into a fixed, thread-count-independent set of tasks (z-slabs or z-layers of cells), each task
 //! adds in a fixed order, and partial virials are summed in task order.
+//!
+//! With Lees–Edwards boundaries ([`ShearImages`]) the pairs across the y boundary are left out
+//! of both schemes and computed by a separate pass ([`shear_cross`]) in which each particle of
+//! the first and last rows of cells sums its own cross-boundary pairs (so each such pair is
+//! computed twice, once from each side). Its neighbour cells are the row across the boundary,
+//! shifted in x by the offset δ, which is not a multiple of the cell size: four cells per row
+//! cover the cutoff. The separation uses the image's shift `(k δ + m Lx, k Ly, n Lz)` and the
+//! velocity difference the image's velocity `v_j + k U x̂`; both are formed so that the two
+//! sides get exactly opposite values, and the force is odd in them, so Newton's third law holds
+//! bit for bit here too.
 
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
@@ -12,7 +22,22 @@ use rayon::prelude::*;
 use crate::cells::CellList;
 use crate::kernel::{KernelTable, PairKernel};
 use crate::rng::pair_xi;
-use crate::ForceScheme;
+use crate::{ForceScheme, Real};
+
+/// What the pair loop needs of Lees–Edwards boundaries (see [`crate::PeriodicBox`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShearImages {
+    /// Offset δ ∈ [0, Lx) of the image one period up in y.
+    pub offset: Real,
+    /// Shear velocity U: the x velocity of the image one period up.
+    pub velocity: Real,
+}
+
+/// Whether the neighbour offset `dy` from row `y` of `ny` crosses the y boundary.
+#[inline(always)]
+fn crosses_y(y: usize, dy: i32, ny: usize) -> bool {
+    (y == 0 && dy < 0) || (y + 1 == ny && dy > 0)
+}
 
 /// The 13 forward neighbour offsets of the half shell (dz = 1: all 9; dz = 0: dy = 1, or
 /// dy = 0 and dx = 1). Together with the pairs inside a cell they visit each pair once.
@@ -131,7 +156,8 @@ fn push_range(nb: &mut [(usize, usize, DVec3)], len: &mut usize, a: usize, e: us
 }
 
 /// Computes the pair forces of the cell-sorted particles into `sf` (sorted order, overwritten)
-/// and returns the pair virial Σ_pairs r_ij ⊗ f_ij (zero unless `virial`).
+/// and returns the pair virial Σ_pairs r_ij ⊗ f_ij (zero unless `virial`). `shear` gives the
+/// Lees–Edwards images of a sheared box (None: ordinary periodic boundaries).
 pub fn compute<K: PairKernel>(
     scheme: ForceScheme,
     cl: &CellList,
@@ -139,19 +165,32 @@ pub fn compute<K: PairKernel>(
     key: u64,
     sf: &mut Vec<DVec3>,
     virial: bool,
+    shear: Option<ShearImages>,
 ) -> DMat3 {
     sf.clear();
     sf.resize(cl.pos.len(), DVec3::ZERO);
     let one = table.ntypes() == 1;
-    match (scheme, virial, one) {
-        (ForceScheme::HalfShell, false, false) => half_shell::<K, false, false>(cl, table, key, sf),
-        (ForceScheme::HalfShell, false, true) => half_shell::<K, false, true>(cl, table, key, sf),
-        (ForceScheme::HalfShell, true, false) => half_shell::<K, true, false>(cl, table, key, sf),
-        (ForceScheme::HalfShell, true, true) => half_shell::<K, true, true>(cl, table, key, sf),
-        (ForceScheme::Gather, false, false) => gather::<K, false, false>(cl, table, key, sf),
-        (ForceScheme::Gather, false, true) => gather::<K, false, true>(cl, table, key, sf),
-        (ForceScheme::Gather, true, false) => gather::<K, true, false>(cl, table, key, sf),
-        (ForceScheme::Gather, true, true) => gather::<K, true, true>(cl, table, key, sf),
+    let le = shear.is_some();
+    let w = match (scheme, virial, one) {
+        (ForceScheme::HalfShell, false, false) => half_shell::<K, false, false>(cl, table, key, sf, le),
+        (ForceScheme::HalfShell, false, true) => half_shell::<K, false, true>(cl, table, key, sf, le),
+        (ForceScheme::HalfShell, true, false) => half_shell::<K, true, false>(cl, table, key, sf, le),
+        (ForceScheme::HalfShell, true, true) => half_shell::<K, true, true>(cl, table, key, sf, le),
+        (ForceScheme::Gather, false, false) => gather::<K, false, false>(cl, table, key, sf, le),
+        (ForceScheme::Gather, false, true) => gather::<K, false, true>(cl, table, key, sf, le),
+        (ForceScheme::Gather, true, false) => gather::<K, true, false>(cl, table, key, sf, le),
+        (ForceScheme::Gather, true, true) => gather::<K, true, true>(cl, table, key, sf, le),
+    };
+    match shear {
+        None => w,
+        Some(sh) => {
+            w + match (virial, one) {
+                (false, false) => shear_cross::<K, false, false>(cl, table, key, sf, sh),
+                (false, true) => shear_cross::<K, false, true>(cl, table, key, sf, sh),
+                (true, false) => shear_cross::<K, true, false>(cl, table, key, sf, sh),
+                (true, true) => shear_cross::<K, true, true>(cl, table, key, sf, sh),
+            }
+        }
     }
 }
 
@@ -187,6 +226,7 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
     table: &KernelTable<K>,
     key: u64,
     sf: &mut [DVec3],
+    le: bool,
 ) -> DMat3 {
     let nz = cl.grid.n[2];
     let nslab = if nz % 2 == 0 { nz } else { nz - 1 };
@@ -219,7 +259,7 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
         }
         let out: Vec<(usize, DMat3)> = tasks
             .into_par_iter()
-            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, key, layers(s), &mut w)))
+            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, key, layers(s), &mut w, le)))
             .collect();
         for (s, m) in out {
             vir[s] = m;
@@ -256,7 +296,7 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
         }
         let out: Vec<(usize, DMat3)> = tasks
             .into_par_iter()
-            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, key, layers(s), &mut w)))
+            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, key, layers(s), &mut w, le)))
             .collect();
         for (s, m) in out {
             vir[s] = m;
@@ -271,6 +311,7 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
     key: u64,
     (z0, z1): (usize, usize),
     win: &mut Win<'_>,
+    le: bool,
 ) -> DMat3 {
     let g = &cl.grid;
     let [nx, ny, _] = g.n;
@@ -287,6 +328,9 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
                 let mut m = s1 - s0;
                 let mut nnb = 0;
                 for d in HALF.iter() {
+                    if le && crosses_y(y, d[1], ny) {
+                        continue; // Lees–Edwards: done by `shear_cross`
+                    }
                     let (c, sh) = g.neighbour(x, y, z, *d);
                     let (a, e) = cl.range(c);
                     push_range(&mut nb, &mut nnb, a, e, sh);
@@ -334,6 +378,7 @@ fn gather<K: PairKernel, const V: bool, const ONE: bool>(
     table: &KernelTable<K>,
     key: u64,
     sf: &mut [DVec3],
+    le: bool,
 ) -> DMat3 {
     let nz = cl.grid.n[2];
     let mut tasks = Vec::with_capacity(nz);
@@ -348,7 +393,7 @@ fn gather<K: PairKernel, const V: bool, const ONE: bool>(
     }
     let out: Vec<DMat3> = tasks
         .into_par_iter()
-        .map(|(z, off, w)| gather_layer::<K, V, ONE>(cl, table, key, z, off, w))
+        .map(|(z, off, w)| gather_layer::<K, V, ONE>(cl, table, key, z, off, w, le))
         .collect();
     out.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
 }
@@ -360,6 +405,7 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
     z: usize,
     off: usize,
     out: &mut [DVec3],
+    le: bool,
 ) -> DMat3 {
     let g = &cl.grid;
     let [nx, ny, _] = g.n;
@@ -376,6 +422,9 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
             let mut m = 0;
             for dz in -1..=1 {
                 for dy in -1..=1 {
+                    if le && crosses_y(y, dy, ny) {
+                        continue; // Lees–Edwards: done by `shear_cross`
+                    }
                     for dx in -1..=1 {
                         let (c, sh) = g.neighbour(x, y, z, [dx, dy, dz]);
                         let (a, e) = cl.range(c);
@@ -414,6 +463,119 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
                     }
                 }
                 out[i - off] = fi;
+            }
+        }
+    }
+    vir
+}
+
+// ------------------------------------------------------------------------------ Lees–Edwards
+
+/// The pairs across the Lees–Edwards boundary (see the module docs), added to `sf`; tasks are
+/// z-layers, each writing only the particles of its own first and last rows of cells.
+fn shear_cross<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    key: u64,
+    sf: &mut [DVec3],
+    sh: ShearImages,
+) -> DMat3 {
+    let nz = cl.grid.n[2];
+    let mut tasks = Vec::with_capacity(nz);
+    let mut rest: &mut [DVec3] = sf;
+    let mut off = 0;
+    for z in 0..nz {
+        let end = cl.layer_start(z + 1);
+        let (w, r) = rest.split_at_mut(end - off);
+        tasks.push((z, off, w));
+        rest = r;
+        off = end;
+    }
+    let out: Vec<DMat3> = tasks
+        .into_par_iter()
+        .map(|(z, off, w)| shear_cross_layer::<K, V, ONE>(cl, table, key, z, off, w, sh))
+        .collect();
+    out.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
+}
+
+fn shear_cross_layer<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    key: u64,
+    z: usize,
+    off: usize,
+    out: &mut [DVec3],
+    sh: ShearImages,
+) -> DMat3 {
+    let g = &cl.grid;
+    let [nx, ny, nzc] = g.n;
+    let l = g.lengths();
+    let mut vir = DMat3::ZERO;
+    // (sorted range, position shift, velocity shift)
+    let mut nb = [(0usize, 0usize, DVec3::ZERO, DVec3::ZERO); 12];
+    let mut hits = Hits::default();
+    // Row 0 sees the last row one period down (k = −1); the last row sees row 0 one period up.
+    for (y, yj, k) in [(0usize, ny - 1, -1.0f64), (ny - 1, 0usize, 1.0f64)] {
+        let vsh = DVec3::new(k * sh.velocity, 0.0, 0.0);
+        for x in 0..nx {
+            let (s0, s1) = cl.range(g.index(x, y, z));
+            if s0 == s1 {
+                continue;
+            }
+            // The image of x_j is x_j + k δ: cells from floor(x − k δ/sx) − 1 to + 2 cover the
+            // cutoff (cell size ≥ cutoff).
+            let q0 = (x as Real - k * sh.offset / g.size.x).floor() as i64;
+            let mut nnb = 0;
+            let mut m = 0;
+            for dz in -1i64..=1 {
+                let mut zj = z as i64 + dz;
+                let mut sz = 0.0;
+                if zj < 0 {
+                    zj += nzc as i64;
+                    sz = -l.z;
+                } else if zj >= nzc as i64 {
+                    zj -= nzc as i64;
+                    sz = l.z;
+                }
+                for q in q0 - 1..=q0 + 2 {
+                    let wraps = q.div_euclid(nx as i64);
+                    let xj = q.rem_euclid(nx as i64) as usize;
+                    let (a, e) = cl.range(g.index(xj, yj, zj as usize));
+                    if a == e {
+                        continue;
+                    }
+                    let shift = DVec3::new(k * sh.offset + wraps as Real * l.x, k * l.y, sz);
+                    nb[nnb] = (a, e, shift, vsh);
+                    nnb += 1;
+                    m += e - a;
+                }
+            }
+            hits.reserve(m);
+            for i in s0..s1 {
+                let pi = cl.pos[i];
+                let vi = cl.vel[i];
+                let idi = cl.id[i];
+                let row = if ONE {
+                    table.row(0)
+                } else {
+                    table.row(cl.ptype[i] as usize)
+                };
+                let mut fi = DVec3::ZERO;
+                for &(a, e, shift, vshift) in &nb[..nnb] {
+                    hits.n = 0;
+                    hits.scan::<K, ONE>(row, cl, a, e, |pj| (pi - pj) - shift);
+                    for &h in &hits.h[..hits.n] {
+                        let j = h.j as usize;
+                        let kern = if ONE { row[0] } else { row[cl.ptype[j] as usize] };
+                        let xi = pair_xi(key, idi, cl.id[j]);
+                        let f = kern.force(h.dr, h.r2, (vi - cl.vel[j]) - vshift, xi);
+                        fi += f;
+                        if V {
+                            vir += outer(h.dr, f * 0.5);
+                        }
+                    }
+                }
+                out[i - off] += fi;
             }
         }
     }

@@ -356,6 +356,10 @@ pub struct SimConfig {
     pub seed: u64,
     /// Pair loop organisation. Default [`ForceScheme::HalfShell`].
     pub scheme: ForceScheme,
+    /// Lees–Edwards shear rate γ̇ (1/time): simple shear u = γ̇ y x̂ imposed through the y
+    /// boundaries (see [`crate::PeriodicBox`]). Default 0: an ordinary periodic box.
+    #[serde(default)]
+    pub shear_rate: Real,
 }
 
 impl SimConfig {
@@ -367,7 +371,14 @@ impl SimConfig {
             lambda: 0.5,
             seed,
             scheme: ForceScheme::default(),
+            shear_rate: 0.0,
         }
+    }
+
+    /// The same config with Lees–Edwards boundaries at shear rate `shear_rate` (1/time).
+    pub fn with_shear_rate(mut self, shear_rate: Real) -> Self {
+        self.shear_rate = shear_rate;
+        self
     }
 
     /// Checks dt and λ (the box is checked against the cutoff by the simulation).
@@ -376,6 +387,12 @@ impl SimConfig {
             return Err(EngineError::invalid(
                 "time step dt",
                 format!("must be finite and > 0, got {}", self.dt),
+            ));
+        }
+        if !self.shear_rate.is_finite() {
+            return Err(EngineError::invalid(
+                "shear rate",
+                format!("must be finite, got {}", self.shear_rate),
             ));
         }
         if !(self.lambda.is_finite() && (0.0..=1.0).contains(&self.lambda)) {

@@ -140,9 +140,13 @@ impl<E: Extension> Simulation<E> {
         ext: E,
     ) -> Result<Self, EngineError> {
         particles.validate(&field)?;
-        let domain = PeriodicBox::new(config.box_lengths)?;
-        for p in particles.pos.iter_mut() {
-            *p = domain.wrap(*p);
+        config.validate()?;
+        let domain = PeriodicBox::new(config.box_lengths)?.with_shear_rate(config.shear_rate)?;
+        let u = domain.shear_velocity();
+        for (p, v) in particles.pos.iter_mut().zip(particles.vel.iter_mut()) {
+            let (w, k) = domain.wrap_sheared(*p);
+            *p = w;
+            v.x -= k as Real * u; // Lees–Edwards: the velocity follows the image (U = 0: no-op)
         }
         let mut sim = Self::assemble(config, field, particles, 0, ext)?;
         sim.compute_forces(false)?;
@@ -153,7 +157,9 @@ impl<E: Extension> Simulation<E> {
     /// continuation is bit-identical to an uninterrupted run).
     pub fn from_state(state: SimState, ext: E) -> Result<Self, EngineError> {
         state.particles.validate(&state.field)?;
-        let domain = PeriodicBox::new(state.config.box_lengths)?;
+        let domain = PeriodicBox::new(state.config.box_lengths)?
+            .with_shear_rate(state.config.shear_rate)?
+            .at_time(state.step as Real * state.config.dt);
         if let Some(i) = state.particles.pos.iter().position(|p| domain.wrap(*p) != *p) {
             return Err(EngineError::invalid(
                 format!("saved particle {i}"),
@@ -172,7 +178,9 @@ impl<E: Extension> Simulation<E> {
     ) -> Result<Self, EngineError> {
         config.validate()?;
         field.validate()?;
-        let domain = PeriodicBox::new(config.box_lengths)?;
+        let domain = PeriodicBox::new(config.box_lengths)?
+            .with_shear_rate(config.shear_rate)?
+            .at_time(step as Real * config.dt);
         let grid = CellGrid::new(&domain, field.max_cutoff())?;
         let types = field.types();
         Ok(Self {
@@ -333,9 +341,14 @@ impl<E: Extension> Simulation<E> {
         };
         self.cells.build(&p.pos, &p.ptype, &p.id, vel_of);
         let key = step_key(self.config.seed, key_step);
+        let shear = self.domain.is_sheared().then(|| pairs::ShearImages {
+            offset: self.domain.offset(),
+            velocity: self.domain.shear_velocity(),
+        });
+        let (scheme, cells, sforce) = (self.config.scheme, &self.cells, &mut self.sforce);
         let w = match &self.table {
-            DpdTable::Linear(t) => pairs::compute(self.config.scheme, &self.cells, t, key, &mut self.sforce, virial),
-            DpdTable::General(t) => pairs::compute(self.config.scheme, &self.cells, t, key, &mut self.sforce, virial),
+            DpdTable::Linear(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
+            DpdTable::General(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
         };
         // Scatter back to storage order (a parallel gather through the inverse permutation),
         // adding the body forces on the way.
@@ -381,8 +394,12 @@ impl<E: Extension> Simulation<E> {
         let max_d2 = cell * cell;
 
         // 1. half kick + drift, in parallel; the first offending index (if any) is reported.
+        // Lees–Edwards: the offset of the new time; a particle crossing y = 0 or Ly takes the
+        // velocity of its new image (v_x ∓ U) at once, before any force sees it.
+        self.domain = self.domain.at_time((step + 1) as Real * dt);
         {
             let (inv_mass, frozen, domain) = (&self.inv_mass, &self.frozen, &self.domain);
+            let u = domain.shear_velocity();
             let p = &mut self.particles;
             let bad = p
                 .pos
@@ -400,7 +417,11 @@ impl<E: Extension> Simulation<E> {
                     *v += *f * (h * inv_mass[t]);
                     let d = *v * dt;
                     if d.length_squared() <= max_d2 {
-                        *x = domain.wrap(*x + d);
+                        let (w, k) = domain.wrap_sheared(*x + d);
+                        *x = w;
+                        if k != 0 {
+                            v.x -= k as Real * u;
+                        }
                         None
                     } else {
                         Some(i)
