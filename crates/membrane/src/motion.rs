@@ -647,6 +647,24 @@ mod tests {
     }
 
     #[test]
+    fn jeffery_orbit_flip_rate_recovered() {
+        // a rigid ellipse of aspect r in shear: tan θ = r tan(−γ̇ t r/(r² + 1)), two flips per
+        // Jeffery period 2π (r + 1/r)/γ̇; the non-uniform rotation averages out over whole flips
+        let (u, r) = (sphere(400), 2.0);
+        let rest: Vec<DVec3> = u.iter().map(|&p| ellipsoid(p)).collect();
+        let ts = times(0.05, 50.0);
+        let theta = |t: f64| {
+            let a = -t * r / (r * r + 1.0);
+            (r * a.tan()).atan() + PI * (a / PI).round()
+        };
+        let fr = frames(&ts, &u, ellipsoid, theta, |_| 0.0);
+        let m = run(&ts, &fr, &rest);
+        let rate = 2.0 / (TAU * (r + 1.0 / r));
+        assert_eq!(m.class, MotionClass::Tumbling, "{m:?}");
+        assert!(close(m.tumbling_rate, rate, 0.01 * rate), "{m:?} vs {rate}");
+    }
+
+    #[test]
     fn tank_treading_frequency_and_inclination_recovered() {
         let u = sphere(600);
         let rest: Vec<DVec3> = u.iter().map(|&p| ellipsoid(p)).collect();
