@@ -404,7 +404,9 @@ impl Cell {
         (tested, wrong)
     }
 
-    /// Advances the unwrapped positions to the vertices' new wrapped positions.
+    /// Advances the unwrapped positions to the vertices' new wrapped positions. With
+    /// Lees–Edwards boundaries the nearest image carries the x shift of its y period at the
+    /// current offset, so a cell straddling the shear plane stays whole.
     fn unwrap(&mut self, s: &StateMut<'_>) {
         std::mem::swap(&mut self.x, &mut self.x_prev);
         let first = self.config.first;
@@ -420,6 +422,13 @@ impl Cell {
         let centre = 0.5 * (lo + hi);
         let (inner, outer) = (self.config.inner_type, self.config.outer_type);
         let domain = *s.domain;
+        // Lees–Edwards: a particle's image next to the cell moves with v − k U x̂ (k from
+        // `min_image_sheared`); the bounce works in the cell's frame (U = 0: no change)
+        let shear_u = domain.shear_velocity();
+        let framed = |p: DVec3, v: DVec3| {
+            let (d, k) = domain.min_image_sheared(p, centre);
+            (centre + d, v - DVec3::X * (k as f64 * shear_u))
+        };
         let vr = self.vertex_range();
         // 1. particles whose segment of the step meets the cell's box
         self.candidates.clear();
@@ -432,8 +441,8 @@ impl Cell {
                     if (t != inner && t != outer) || vr.contains(&i) {
                         return false;
                     }
-                    let p1 = centre + domain.min_image(pos[i], centre);
-                    segment_meets_box(p1 - vel[i] * dt, p1, lo, hi)
+                    let (p1, v) = framed(pos[i], vel[i]);
+                    segment_meets_box(p1 - v * dt, p1, lo, hi)
                 }));
         }
         if self.candidates.is_empty() {
@@ -509,8 +518,7 @@ impl Cell {
             .with_min_len(64)
             .filter_map(|&i| {
                 let iu = i as usize;
-                let p1 = centre + domain.min_image(pos[iu], centre);
-                let v = vel[iu];
+                let (p1, v) = framed(pos[iu], vel[iu]);
                 let p0 = p1 - v * dt;
                 let (plo, phi) = (p0.min(p1), p0.max(p1));
                 let r = grid.range(plo, phi);
@@ -582,8 +590,9 @@ impl Cell {
         let first = self.config.first;
         for e in &events {
             let i = e.particle as usize;
-            s.pos[i] = domain.wrap(e.position);
-            s.vel[i] = e.velocity;
+            let (w, k) = domain.wrap_sheared(e.position);
+            s.pos[i] = w;
+            s.vel[i] = e.velocity - DVec3::X * (k as f64 * shear_u);
             let t = tris[e.triangle as usize];
             for k in 0..3 {
                 let vi = first + t[k] as usize;

@@ -392,3 +392,149 @@ fn wall_repulsion_is_the_gradient_of_its_energy() {
         assert!(tested > 150, "only {tested} points inside the range");
     }
 }
+
+/// The cell of [`cell_crossing_the_periodic_boundary_is_unchanged`] crossing the Lees–Edwards
+/// plane of a sheared 12³ box (γ̇ = 0.8: U = 9.6, vertices that cross change their wrapped
+/// velocity by ∓U and their x by ∓δ) keeps its unwrapped positions, forces, area and volume to
+/// round-off against the same cell in a 100³ unsheared box.
+#[test]
+fn cell_straddling_the_shear_plane_is_unchanged() {
+    let run = |l: f64, rate: f64| {
+        let (mesh, model) = cell_mesh(200, DVec3::new(6.0, 1.0, 6.0));
+        let config = SimConfig::new(DVec3::splat(l), 0.001, 5).with_shear_rate(rate);
+        let none = PairParams {
+            a: 0.0,
+            gamma: 0.0,
+            kbt: 0.0,
+            ..PairParams::groot_warren()
+        };
+        let f = ForceField::new(vec![TypeSpec::new("membrane")], none).unwrap();
+        let mut p = Particles::with_capacity(mesh.vertices.len());
+        for (k, v) in mesh.vertices.iter().enumerate() {
+            p.push(*v, DVec3::new(3.0, -7.0, 1.0), 0, k as u32);
+        }
+        let cfg = CellConfig {
+            first: 0,
+            outer_type: u16::MAX,
+            inner_type: u16::MAX,
+            check_every: 0,
+            wall: None,
+            reflection: MembraneReflection::BounceBack,
+            kbt: 1.0,
+            seed: 1,
+        };
+        let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
+        let mut sim = Simulation::with_extension(config, f, p, cell).unwrap();
+        let mut straddled = false;
+        for _ in 0..1500 {
+            sim.step().unwrap();
+            let ys = sim.particles().pos.iter().map(|x| x.y);
+            straddled |= ys.clone().fold(f64::INFINITY, f64::min) < 1.0 && ys.fold(0.0, f64::max) > l - 1.0;
+        }
+        let cell = sim.extension();
+        let (a, v) = cell.model().area_volume(cell.vertices()).unwrap();
+        let mut fm = vec![DVec3::ZERO; cell.vertices().len()];
+        cell.model().add_forces(cell.vertices(), &mut fm).unwrap();
+        (cell.vertices().to_vec(), fm, a, v, straddled)
+    };
+    let (xs, fs, a_s, v_s, straddled) = run(12.0, 0.8);
+    let (xb, fb, a_b, v_b, _) = run(100.0, 0.0);
+    assert!(straddled, "the cell never straddled the shear plane");
+    let dx = xs.iter().zip(&xb).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
+    assert!(dx < 1e-9, "unwrapped positions differ by {dx}");
+    let fscale = fb.iter().map(|f| f.length()).fold(0.0, f64::max);
+    let df = fs.iter().zip(&fb).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
+    assert!(df <= 1e-7 * fscale, "forces differ by {df} (scale {fscale})");
+    assert!(((a_s - a_b) / a_b).abs() < 1e-12 && ((v_s - v_b) / v_b).abs() < 1e-12);
+}
+
+/// A cell at rest on the Lees–Edwards plane of a sheared box of fluid (γ̇ = 0.3, the fluid
+/// started on the sheared profile, zero at the plane): bounce-back and the no-slip friction use
+/// the sheared images and their velocities, so over 3000 steps no inner or outer particle ends
+/// on the wrong side (checked every 100 steps), Σ m v_y and Σ m v_z are conserved, and Σ m v_x
+/// changes only by −U per crossing of the plane (counted from the particles' jumps in y).
+#[test]
+fn fluid_stays_on_its_side_of_a_cell_on_the_shear_plane() {
+    let l = 12.0;
+    let rate = 0.3;
+    let u = rate * l;
+    let centre = DVec3::new(l / 2.0, 0.0, l / 2.0);
+    let (mesh, model) = cell_mesh(300, centre);
+    let config = SimConfig::new(DVec3::splat(l), 0.002, 9).with_shear_rate(rate);
+    let fluid = PairParams::groot_warren();
+    let f = field(fluid, 4.5);
+    let box_ = PeriodicBox::new(config.box_lengths)
+        .unwrap()
+        .with_shear_rate(rate)
+        .unwrap();
+    let plain = SimConfig::new(DVec3::splat(l), 0.002, 9);
+    let fluid_p = init::fluid(&plain, &ForceField::single(fluid), &init::FluidSpec::standard(), 4).unwrap();
+    let mut p = Particles::with_capacity(fluid_p.len() + mesh.vertices.len());
+    for i in 0..fluid_p.len() {
+        let x = fluid_p.pos[i];
+        // the cell's frame: y around 0, so test the unwrapped image nearest the cell
+        let xc = centre + box_.min_image(x, centre);
+        let t = if crate::mesh::contains(xc, &mesh.vertices, &mesh.triangles) {
+            INNER
+        } else {
+            OUTER
+        };
+        // streaming velocity γ̇ y in the image nearest the cell (0 at the plane)
+        p.push(xc, fluid_p.vel[i] + DVec3::X * (rate * xc.y), t, i as u32);
+    }
+    let first = p.len();
+    for (k, v) in mesh.vertices.iter().enumerate() {
+        p.push(*v, DVec3::ZERO, MEMBRANE, (first + k) as u32);
+    }
+    let cfg = CellConfig {
+        first,
+        outer_type: OUTER,
+        inner_type: INNER,
+        check_every: 100,
+        wall: None,
+        reflection: MembraneReflection::Maxwell,
+        kbt: 1.0,
+        seed: 1,
+    };
+    let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
+    let mut sim = Simulation::with_extension(config, f, p, cell).unwrap();
+    let (tested0, wrong0) = sim
+        .extension()
+        .count_misplaced(&sim.particles().pos, &sim.particles().ptype, sim.domain());
+    assert_eq!(wrong0, 0);
+    eprintln!("tested0 {tested0}");
+    assert!(tested0 > 400);
+    let p0 = momentum(sim.particles());
+    let mut y: Vec<f64> = sim.particles().pos.iter().map(|x| x.y).collect();
+    let mut net_up = 0i64; // crossings of y = Ly upward minus downward
+    for _ in 0..3000 {
+        sim.step().unwrap();
+        for (yo, x) in y.iter_mut().zip(&sim.particles().pos) {
+            let d = x.y - *yo;
+            if d < -0.5 * l {
+                net_up += 1;
+            } else if d > 0.5 * l {
+                net_up -= 1;
+            }
+            *yo = x.y;
+        }
+    }
+    let s = sim.extension().stats().clone();
+    eprintln!("sheared: {s:?}; net crossings {net_up}");
+    assert_eq!(s.misplaced, 0, "{s:?}");
+    assert!(s.bounces > 100, "too few bounces to test anything: {s:?}");
+    let p1 = momentum(sim.particles());
+    let scale = momentum_scale(sim.particles());
+    let expected = p0 - DVec3::X * (u * net_up as f64);
+    assert!(
+        (p1 - expected).length() < 1e-10 * scale,
+        "momentum {p0} -> {p1}, expected {expected}"
+    );
+    // the cell is still on the plane: it straddles it
+    let ys = sim.extension().vertices().iter().map(|x| x.y);
+    let (lo, hi) = (
+        ys.clone().fold(f64::INFINITY, f64::min),
+        ys.fold(f64::NEG_INFINITY, f64::max),
+    );
+    assert!(lo < 0.0 && hi > 0.0, "cell y range {lo}..{hi}");
+}
