@@ -65,6 +65,33 @@ impl<A: Extension, B: Extension> Extension for (A, B) {
     }
 }
 
+/// An optional extension: `None` does nothing (a scene without walls runs no wall code).
+impl<E: Extension> Extension for Option<E> {
+    #[inline]
+    fn after_position_update(&mut self, state: &mut StateMut<'_>) -> Result<(), EngineError> {
+        match self {
+            Some(e) => e.after_position_update(state),
+            None => Ok(()),
+        }
+    }
+
+    #[inline]
+    fn add_forces(&mut self, state: &mut StateMut<'_>) -> Result<(), EngineError> {
+        match self {
+            Some(e) => e.add_forces(state),
+            None => Ok(()),
+        }
+    }
+
+    #[inline]
+    fn end_of_step(&mut self, state: &mut StateMut<'_>) -> Result<(), EngineError> {
+        match self {
+            Some(e) => e.end_of_step(state),
+            None => Ok(()),
+        }
+    }
+}
+
 /// An extension with a stopwatch: the wall-clock seconds spent in its hooks (for the share of a
 /// step each part takes; the state is untouched, so the trajectory does not change).
 #[derive(Debug, Clone, Default)]

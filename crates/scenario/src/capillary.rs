@@ -312,11 +312,7 @@ impl StageSection {
 impl CapillaryScenario {
     /// The membrane parameters of level N.
     pub fn params(&self) -> Result<ModelParams, RunError> {
-        Ok(ModelParams::with_persistence_scale(
-            self.cell.vertices as usize,
-            self.cell.temperature_k,
-            self.cell.persistence_scale,
-        )?)
+        cell_params(&self.cell)
     }
 
     /// The fastest stage's mean velocity (a target, or the Poiseuille estimate of a pressure
@@ -348,16 +344,7 @@ impl CapillaryScenario {
     }
 
     fn thermal(&self) -> ThermalChoice {
-        match &self.model.thermal_factor {
-            ThermalSetting::Factor(f) => ThermalChoice::Factor(*f),
-            ThermalSetting::Word(w) => match w.trim() {
-                "auto" => ThermalChoice::Auto {
-                    max_mach: self.model.max_mach,
-                },
-                "exact" => ThermalChoice::Exact,
-                s => ThermalChoice::Factor(s.parse().unwrap_or(f64::NAN)),
-            },
-        }
+        thermal_choice(&self.model.thermal_factor, self.model.max_mach)
     }
 
     /// The unit mapping (errors name the scenario key).
@@ -378,6 +365,92 @@ impl CapillaryScenario {
         let (sys, m) = self.mapping()?;
         Ok(units::explain(&sys, &m, &FluidModel::capillary()))
     }
+}
+
+/// The membrane parameters of level N of a `[cell]` section.
+pub(crate) fn cell_params(cell: &CellSection) -> Result<ModelParams, RunError> {
+    Ok(ModelParams::with_persistence_scale(
+        cell.vertices as usize,
+        cell.temperature_k,
+        cell.persistence_scale,
+    )?)
+}
+
+/// The [`ThermalChoice`] of a `model.thermal_factor` setting.
+pub(crate) fn thermal_choice(setting: &ThermalSetting, max_mach: f64) -> ThermalChoice {
+    match setting {
+        ThermalSetting::Factor(f) => ThermalChoice::Factor(*f),
+        ThermalSetting::Word(w) => match w.trim() {
+            "auto" => ThermalChoice::Auto { max_mach },
+            "exact" => ThermalChoice::Exact,
+            s => ThermalChoice::Factor(s.parse().unwrap_or(f64::NAN)),
+        },
+    }
+}
+
+/// Validates a `[cell]` section (shared by the kinds with a cell in flow).
+pub(crate) fn validate_cell(cell: &CellSection, file: &str) -> Result<(), ScenarioError> {
+    let fail = |key: &str, value: String, allowed: &str| ScenarioError::Value {
+        file: file.into(),
+        key: key.into(),
+        value,
+        allowed: allowed.into(),
+    };
+    let range = |key: &str, v: f64, lo: f64, hi: f64, allowed: &str| {
+        if v.is_finite() && v >= lo && v <= hi {
+            Ok(())
+        } else {
+            Err(fail(key, format!("{v}"), allowed))
+        }
+    };
+    if cell.vertices < 100 || cell.vertices > 50_000 {
+        return Err(fail(
+            "cell.vertices",
+            cell.vertices.to_string(),
+            "100–50000 (the coarse-grained model needs N ≥ 100)",
+        ));
+    }
+    range("cell.temperature_k", cell.temperature_k, 250.0, 350.0, "250–350 K")?;
+    range("cell.persistence_scale", cell.persistence_scale, 0.5, 2.0, "0.5–2")?;
+    range(
+        "cell.area_constraint_n_per_m",
+        cell.area_constraint_n_per_m,
+        0.0,
+        1.0,
+        "0–1 N/m",
+    )?;
+    range(
+        "cell.volume_constraint_n_per_m2",
+        cell.volume_constraint_n_per_m2,
+        0.0,
+        1e6,
+        "0–1e6 N/m²",
+    )
+}
+
+/// Validates `model.thermal_factor` and `model.max_mach`.
+pub(crate) fn validate_thermal(setting: &ThermalSetting, max_mach: f64, file: &str) -> Result<(), ScenarioError> {
+    let thermal_ok = match setting {
+        ThermalSetting::Factor(f) => f.is_finite() && *f >= 1.0,
+        ThermalSetting::Word(w) => matches!(w.trim(), "auto" | "exact"),
+    };
+    if !thermal_ok {
+        return Err(ScenarioError::Value {
+            file: file.into(),
+            key: "model.thermal_factor".into(),
+            value: setting.to_string(),
+            allowed: "\"auto\", \"exact\" or a number ≥ 1".into(),
+        });
+    }
+    if !(max_mach.is_finite() && (1e-3..=units::MACH_LIMIT).contains(&max_mach)) {
+        return Err(ScenarioError::Value {
+            file: file.into(),
+            key: "model.max_mach".into(),
+            value: format!("{max_mach}"),
+            allowed: "(0, 0.25]".into(),
+        });
+    }
+    Ok(())
 }
 
 /// Validates the capillary section of a file: every value, the cell fitting the tube, the
@@ -406,29 +479,7 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
         "1e-4–1 Pa·s",
     )?;
     range("plasma.viscosity_ratio", s.plasma.viscosity_ratio, 0.1, 20.0, "0.1–20")?;
-    if s.cell.vertices < 100 || s.cell.vertices > 50_000 {
-        return Err(fail(
-            "cell.vertices",
-            s.cell.vertices.to_string(),
-            "100–50000 (the coarse-grained model needs N ≥ 100)",
-        ));
-    }
-    range("cell.temperature_k", s.cell.temperature_k, 250.0, 350.0, "250–350 K")?;
-    range("cell.persistence_scale", s.cell.persistence_scale, 0.5, 2.0, "0.5–2")?;
-    range(
-        "cell.area_constraint_n_per_m",
-        s.cell.area_constraint_n_per_m,
-        0.0,
-        1.0,
-        "0–1 N/m",
-    )?;
-    range(
-        "cell.volume_constraint_n_per_m2",
-        s.cell.volume_constraint_n_per_m2,
-        0.0,
-        1e6,
-        "0–1e6 N/m²",
-    )?;
+    validate_cell(&s.cell, file)?;
     range(
         "model.length_um_per_rc",
         s.model.length_um_per_rc,
@@ -436,18 +487,7 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
         2.0,
         "0.25–2 µm per rc",
     )?;
-    let thermal_ok = match &s.model.thermal_factor {
-        ThermalSetting::Factor(f) => f.is_finite() && *f >= 1.0,
-        ThermalSetting::Word(w) => matches!(w.trim(), "auto" | "exact"),
-    };
-    if !thermal_ok {
-        return Err(fail(
-            "model.thermal_factor",
-            s.model.thermal_factor.to_string(),
-            "\"auto\", \"exact\" or a number ≥ 1",
-        ));
-    }
-    range("model.max_mach", s.model.max_mach, 1e-3, units::MACH_LIMIT, "(0, 0.25]")?;
+    validate_thermal(&s.model.thermal_factor, s.model.max_mach, file)?;
     if let Some(dt) = s.model.timestep {
         range(
             "model.timestep",
@@ -641,65 +681,9 @@ impl<'a> Plan<'a> {
         DVec3::new(0.5 * self.box_lengths.x, 0.5 * self.box_lengths.y, 0.5 * self.length)
     }
 
-    /// Viscosity of each side, model units.
-    fn viscosities(&self) -> (f64, f64) {
-        (
-            self.fluid.viscosity,
-            self.fluid.viscosity * self.s.plasma.viscosity_ratio,
-        )
-    }
-
     /// The force field (see the module docs).
     fn field(&self, vertex_density: f64) -> Result<ForceField, RunError> {
-        let p = self.fluid.pair;
-        let (eta_o, eta_i) = self.viscosities();
-        // inner γ: η ∝ γ for this fluid (the kinetic part is 0.2 % of η), so the ratio of the
-        // viscosities is the ratio of the γ's to that accuracy (docs/capillary.md)
-        let inner = PairParams {
-            gamma: p.gamma * self.s.plasma.viscosity_ratio,
-            ..p
-        };
-        let fsi = |eta: f64| PairParams {
-            a: 0.0,
-            gamma: units::fsi_friction(eta, self.fluid.density, vertex_density, p.s, p.rc),
-            ..p
-        };
-        let none = PairParams {
-            a: 0.0,
-            gamma: 0.0,
-            kbt: 0.0,
-            ..p
-        };
-        let mut f = ForceField::new(
-            vec![
-                TypeSpec::new("plasma"),
-                TypeSpec::frozen("wall"),
-                TypeSpec::new("cytosol"),
-                TypeSpec::new("membrane"),
-            ],
-            p,
-        )
-        .map_err(engine_err)?;
-        let set = |f: &mut ForceField, a: u16, b: u16, q: PairParams| f.set_pair(a as usize, b as usize, q);
-        set(&mut f, WALL, WALL, none).map_err(engine_err)?;
-        set(&mut f, INNER, INNER, inner).map_err(engine_err)?;
-        set(&mut f, INNER, WALL, inner).map_err(engine_err)?;
-        set(
-            &mut f,
-            INNER,
-            OUTER,
-            PairParams {
-                gamma: 0.0,
-                kbt: 0.0,
-                ..p
-            },
-        )
-        .map_err(engine_err)?;
-        set(&mut f, MEMBRANE, OUTER, fsi(eta_o)).map_err(engine_err)?;
-        set(&mut f, MEMBRANE, WALL, fsi(eta_o)).map_err(engine_err)?;
-        set(&mut f, MEMBRANE, INNER, fsi(eta_i)).map_err(engine_err)?;
-        set(&mut f, MEMBRANE, MEMBRANE, none).map_err(engine_err)?;
-        Ok(f)
+        cell_fluid_field(&self.fluid, self.s.plasma.viscosity_ratio, vertex_density)
     }
 
     fn wall_config(&self) -> WallConfig {
@@ -712,29 +696,9 @@ impl<'a> Plan<'a> {
         }
     }
 
-    fn constants(&self, params: &ModelParams) -> MembraneConstants {
-        MembraneConstants::from_params(
-            params,
-            self.map.length_m,
-            self.map.energy_j,
-            self.s.cell.area_constraint_n_per_m,
-            self.s.cell.volume_constraint_n_per_m2,
-        )
-    }
-
     /// The resting mesh in µm (generated and cached, or the user's), on its principal axes.
     fn mesh_um(&self) -> Result<(Mesh, serde_json::Value), RunError> {
-        match &self.s.cell.mesh_file {
-            Some(f) => {
-                let path = self.s.base_dir.join(f);
-                let (mesh, pose) = mesh_cache::user_mesh(&path)?;
-                Ok((mesh, json!({ "source": "file", "path": path, "pose_change": pose })))
-            }
-            None => {
-                let (mesh, origin) = mesh_cache::relaxed_mesh(self.s.cell.vertices as usize, self.s.seed)?;
-                Ok((mesh, json!({ "source": "generated", "origin": origin })))
-            }
-        }
+        cell_mesh_um(&self.s.cell, self.s.seed, &self.s.base_dir)
     }
 
     /// The resting mesh in model units, symmetry axis along the tube, centred on the axis.
@@ -750,13 +714,7 @@ impl<'a> Plan<'a> {
     }
 
     fn model(&self, rest: &Mesh) -> Result<MembraneModel, RunError> {
-        let params = self.s.params()?;
-        let c = self.constants(&params);
-        let topo = rest.topology()?;
-        Ok(match self.s.cell.reference {
-            ReferenceState::Uniform => MembraneModel::uniform(&topo, &c, rest.area(), rest.volume())?,
-            ReferenceState::StressFree => MembraneModel::stress_free(&topo, &rest.vertices, &c)?,
-        })
+        membrane_model(&self.s.cell, &self.map, rest)
     }
 
     fn cell_config(&self, first: usize) -> CellConfig {
@@ -787,6 +745,103 @@ impl<'a> Plan<'a> {
     fn poiseuille_force(&self, u: f64) -> f64 {
         8.0 * self.fluid.viscosity * u / (self.fluid.density * self.radius * self.radius)
     }
+}
+
+/// The force field of a cell in plasma (types [`OUTER`], [`WALL`], [`INNER`], [`MEMBRANE`];
+/// see the module docs): the inner fluid's γ is the outer's times `viscosity_ratio`, the
+/// membrane's friction with each side gives no slip for that side's viscosity.
+pub(crate) fn cell_fluid_field(
+fluid: &FluidModel,
+viscosity_ratio: f64,
+vertex_density: f64,
+) -> Result<ForceField, RunError> {
+let p = fluid.pair;
+let (eta_o, eta_i) = (fluid.viscosity, fluid.viscosity * viscosity_ratio);
+    // inner γ: η ∝ γ for this fluid (the kinetic part is 0.2 % of η), so the ratio of the
+    // viscosities is the ratio of the γ's to that accuracy (docs/capillary.md)
+    let inner = PairParams {
+        gamma: p.gamma * viscosity_ratio,
+        ..p
+    };
+    let fsi = |eta: f64| PairParams {
+        a: 0.0,
+        gamma: units::fsi_friction(eta, fluid.density, vertex_density, p.s, p.rc),
+        ..p
+    };
+    let none = PairParams {
+        a: 0.0,
+        gamma: 0.0,
+        kbt: 0.0,
+        ..p
+    };
+    let mut f = ForceField::new(
+        vec![
+            TypeSpec::new("plasma"),
+            TypeSpec::frozen("wall"),
+            TypeSpec::new("cytosol"),
+            TypeSpec::new("membrane"),
+        ],
+        p,
+    )
+    .map_err(engine_err)?;
+    let set = |f: &mut ForceField, a: u16, b: u16, q: PairParams| f.set_pair(a as usize, b as usize, q);
+    set(&mut f, WALL, WALL, none).map_err(engine_err)?;
+    set(&mut f, INNER, INNER, inner).map_err(engine_err)?;
+    set(&mut f, INNER, WALL, inner).map_err(engine_err)?;
+    set(
+        &mut f,
+        INNER,
+        OUTER,
+        PairParams {
+            gamma: 0.0,
+            kbt: 0.0,
+            ..p
+        },
+    )
+    .map_err(engine_err)?;
+    set(&mut f, MEMBRANE, OUTER, fsi(eta_o)).map_err(engine_err)?;
+    set(&mut f, MEMBRANE, WALL, fsi(eta_o)).map_err(engine_err)?;
+    set(&mut f, MEMBRANE, INNER, fsi(eta_i)).map_err(engine_err)?;
+    set(&mut f, MEMBRANE, MEMBRANE, none).map_err(engine_err)?;
+    Ok(f)
+}
+
+/// The resting mesh of a `[cell]` section in µm (generated and cached, or the user's), on its
+/// principal axes (symmetry axis y), and where it came from.
+pub(crate) fn cell_mesh_um(
+    cell: &CellSection,
+    seed: u64,
+    base_dir: &std::path::Path,
+) -> Result<(Mesh, serde_json::Value), RunError> {
+    match &cell.mesh_file {
+        Some(f) => {
+            let path = base_dir.join(f);
+            let (mesh, pose) = mesh_cache::user_mesh(&path)?;
+            Ok((mesh, json!({ "source": "file", "path": path, "pose_change": pose })))
+        }
+        None => {
+            let (mesh, origin) = mesh_cache::relaxed_mesh(cell.vertices as usize, seed)?;
+            Ok((mesh, json!({ "source": "generated", "origin": origin })))
+        }
+    }
+}
+
+/// The membrane model of a `[cell]` section in model units (`map`) on the resting mesh `rest`
+/// (model units).
+pub(crate) fn membrane_model(cell: &CellSection, map: &UnitMapping, rest: &Mesh) -> Result<MembraneModel, RunError> {
+    let params = cell_params(cell)?;
+    let c = MembraneConstants::from_params(
+        &params,
+        map.length_m,
+        map.energy_j,
+        cell.area_constraint_n_per_m,
+        cell.volume_constraint_n_per_m2,
+    );
+    let topo = rest.topology()?;
+    Ok(match cell.reference {
+        ReferenceState::Uniform => MembraneModel::uniform(&topo, &c, rest.area(), rest.volume())?,
+        ReferenceState::StressFree => MembraneModel::stress_free(&topo, &rest.vertices, &c)?,
+    })
 }
 
 /// The wall radius R_w whose flow carries the flux of a no-slip tube of radius `radius` when
@@ -846,12 +901,23 @@ const DRY_RUN_STEPS: u64 = 400;
 /// the membrane alone at the fluid's kBT. On failure the error names `model.timestep`, the
 /// step the dry run failed at and the largest time step (halving) that passed.
 fn check_membrane_timestep(plan: &Plan, model: &MembraneModel, rest: &Mesh) -> Result<(), RunError> {
-    let (kbt, mass) = (plan.fluid.pair.kbt, 1.0);
+    check_membrane_timestep_for(plan.dt, plan.fluid.pair.kbt, plan.map.thermal_factor, model, rest)
+}
+
+/// [`check_membrane_timestep`] for a time step `dt`, the fluid's `kbt` and thermal factor `f`.
+pub(crate) fn check_membrane_timestep_for(
+    dt0: f64,
+    kbt: f64,
+    f: f64,
+    model: &MembraneModel,
+    rest: &Mesh,
+) -> Result<(), RunError> {
+    let mass = 1.0;
     let dry = |dt: f64| hemodpd_membrane::coupling::dry_run(model, &rest.vertices, dt, kbt, mass, DRY_RUN_STEPS);
-    let Some(step) = dry(plan.dt) else {
+    let Some(step) = dry(dt0) else {
         return Ok(());
     };
-    let mut dt = plan.dt;
+    let mut dt = dt0;
     let stable = (0..8).find_map(|_| {
         dt *= 0.5;
         dry(dt).is_none().then_some(dt)
@@ -862,7 +928,7 @@ fn check_membrane_timestep(plan: &Plan, model: &MembraneModel, rest: &Mesh) -> R
     };
     Err(RunError::Output(format!(
         "model.timestep = {} is too large for the membrane: a dry run of the membrane alone (no fluid, thermal velocities) became unstable at step {step} of {DRY_RUN_STEPS}; likely cause: the time step cannot resolve the membrane's stiffest mode (its moduli in model units grow as the thermal factor falls: f = {:.3}); {advice}",
-        plan.dt, plan.map.thermal_factor
+        dt0, f
     )))
 }
 
