@@ -46,7 +46,7 @@ enum Command {
         #[arg(long)]
         quiet: bool,
         /// Print how SI maps onto model units (every scale, every dimensionless group in both
-        /// systems, the time step in seconds) and exit without running (capillary scenarios).
+        /// systems, the time step in seconds) and exit without running (capillary and shear scenarios).
         #[arg(long, conflicts_with = "resume")]
         explain_units: bool,
     },
@@ -404,8 +404,12 @@ fn explain(path: &Path, sets: &[String]) -> Result<()> {
             print!("{}", c.explain_units()?);
             Ok(())
         }
+        hemodpd_scenario::Scenario::Shear(c) => {
+            print!("{}", c.explain_units()?);
+            Ok(())
+        }
         other => bail!(
-            "--explain-units: {} is a {} scenario, written in model units already; only capillary scenarios map SI onto the model",
+            "--explain-units: {} is a {} scenario, written in model units already; only capillary and shear scenarios map SI onto the model",
             path.display(),
             other.kind()
         ),
@@ -612,6 +616,20 @@ fn analyze(trajectory: &Path, out: Option<PathBuf>, plot: bool) -> Result<()> {
             "capillary measures of {} frames -> {}",
             rows.len(),
             out.join("capillary.csv").display()
+        );
+    }
+    // a shear run: the motion of the cell and its class
+    if kind == "shear" {
+        let (rows, class) = hemodpd_scenario::shear::analyze_trajectory(trajectory, None)?;
+        hemodpd_scenario::shear::write_motion_csv(&out.join("motion.csv"), &rows)?;
+        let path = out.join("shear.json");
+        std::fs::write(&path, serde_json::to_string_pretty(&class)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+        eprintln!(
+            "shear motion of {} frames: {} -> {}",
+            rows.len(),
+            class["class"],
+            path.display()
         );
     }
     analysis::write_json(out.join("analysis.json"), &a)?;

@@ -81,6 +81,15 @@ pub fn columns(kind: &str) -> &'static [(&'static str, &'static str, bool)] {
             ("DI", "/driven/deformation_index", false),
             ("misplaced", "/crossings/misplaced_total", false),
         ],
+        "shear" => &[
+            ("stress (Pa)", "/shear/shear_stress_pa", false),
+            ("Ca", "/groups_si/capillary_number", false),
+            ("class", "/motion/class", false),
+            ("TTF/rate", "/motion/tank_treading_frequency_over_shear_rate", false),
+            ("flips/s", "/motion/tumbling_rate_flips_per_s", false),
+            ("incl (deg)", "/motion/mean_inclination_deg", false),
+            ("swing (deg)", "/motion/inclination_amplitude_deg", false),
+        ],
         _ => &[],
     }
 }

@@ -176,6 +176,13 @@ struct Pose {
 
 /// The pose of `x`, its θ unwrapped to lie within 90° of `hint` (radians).
 fn pose(x: &[DVec3], hint: f64) -> Pose {
+    let (centroid, g) = gyration(x);
+    let raw = 0.5 * (2.0 * g[1]).atan2(g[0] - g[2]);
+    pose_at(x, centroid, g, hint + wrap(raw - hint, PI))
+}
+
+/// Centroid and in-plane gyration tensor (xx, xy, yy) of `x`.
+fn gyration(x: &[DVec3]) -> (DVec3, [f64; 3]) {
     let n = x.len() as f64;
     let centroid = x.iter().copied().sum::<DVec3>() / n;
     let (mut gxx, mut gxy, mut gyy) = (0.0, 0.0, 0.0);
@@ -185,8 +192,13 @@ fn pose(x: &[DVec3], hint: f64) -> Pose {
         gxy += d.x * d.y / n;
         gyy += d.y * d.y / n;
     }
-    let raw = 0.5 * (2.0 * gxy).atan2(gxx - gyy);
-    let theta = hint + wrap(raw - hint, PI);
+    (centroid, [gxx, gxy, gyy])
+}
+
+/// The pose of `x` with a given (unwrapped) inclination `theta` (radians); `g` is the in-plane
+/// gyration tensor (xx, xy, yy) about `centroid`.
+fn pose_at(x: &[DVec3], centroid: DVec3, g: [f64; 3], theta: f64) -> Pose {
+    let [gxx, gxy, gyy] = g;
     let mean = 0.5 * (gxx + gyy);
     let dev = (0.25 * (gxx - gyy).powi(2) + gxy * gxy).sqrt();
     let anisotropy = if mean > 0.0 { (dev / mean).min(1.0) } else { 0.0 };
@@ -304,6 +316,46 @@ impl MotionTracker {
         };
         (self.last, self.last_time, self.frames) = (p, Some(time), k + 1);
         Ok(out)
+    }
+}
+
+/// What a [`MotionTracker`] needs to continue after a restart, besides the positions of its
+/// last frame: the exact unwrapped angles and counters.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct TrackerSnapshot {
+    /// Unwrapped inclination of the last frame (radians).
+    pub theta_rad: f64,
+    /// Unwrapped tank-treading phase (radians).
+    pub phase_rad: f64,
+    /// Time of the last frame (None before the first).
+    pub last_time: Option<f64>,
+    /// Frames pushed so far.
+    pub frames: usize,
+}
+
+impl MotionTracker {
+    /// The tracker's state, for a checkpoint (with the positions of its last frame, or of the
+    /// rest shape before the first).
+    pub fn snapshot(&self) -> TrackerSnapshot {
+        TrackerSnapshot {
+            theta_rad: self.last.theta,
+            phase_rad: self.phase,
+            last_time: self.last_time,
+            frames: self.frames,
+        }
+    }
+
+    /// Continues from `snap`, whose last frame had the vertex positions `last_frame`; the frames
+    /// pushed next are measured exactly as they would have been without the restart.
+    pub fn resume(last_frame: &[DVec3], snap: &TrackerSnapshot) -> Result<Self, MotionError> {
+        check_rest(last_frame)?;
+        let (centroid, g) = gyration(last_frame);
+        Ok(Self {
+            last: pose_at(last_frame, centroid, g, snap.theta_rad),
+            last_time: snap.last_time,
+            phase: snap.phase_rad,
+            frames: snap.frames,
+        })
     }
 }
 
@@ -806,5 +858,37 @@ mod tests {
         let m = run(&ts, &fr, &rest);
         assert_eq!(m.class, MotionClass::Tumbling, "{m:?}");
         assert!(close(m.tumbling_rate, 0.3 / PI, 0.01 * 0.3 / PI), "{m:?}");
+    }
+
+    /// A tracker resumed from its snapshot and last frame measures the next frames bit for bit
+    /// as the uninterrupted one.
+    #[test]
+    fn resumed_tracker_continues_exactly() {
+        let rest: Vec<DVec3> = (0..60)
+            .map(|k| {
+                let t = k as f64 * 0.7;
+                DVec3::new(3.0 * t.cos(), 1.2 * t.sin(), 0.4 * (2.0 * t).sin())
+            })
+            .collect();
+        let frame = |k: usize| -> Vec<DVec3> {
+            let a = -0.13 * k as f64;
+            let (s, c) = a.sin_cos();
+            rest.iter()
+                .map(|p| DVec3::new(c * p.x - s * p.y, s * p.x + c * p.y, p.z))
+                .collect()
+        };
+        let mut a = MotionTracker::new(&rest).unwrap();
+        for k in 0..7 {
+            a.push(k as f64, &frame(k)).unwrap();
+        }
+        let mut b = MotionTracker::resume(&frame(6), &a.snapshot()).unwrap();
+        for k in 7..20 {
+            let (fa, fb) = (
+                a.push(k as f64, &frame(k)).unwrap(),
+                b.push(k as f64, &frame(k)).unwrap(),
+            );
+            assert_eq!(fa, fb);
+        }
+        assert!(MotionTracker::resume(&frame(6)[..2], &a.snapshot()).is_err());
     }
 }

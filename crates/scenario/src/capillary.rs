@@ -751,12 +751,12 @@ impl<'a> Plan<'a> {
 /// see the module docs): the inner fluid's γ is the outer's times `viscosity_ratio`, the
 /// membrane's friction with each side gives no slip for that side's viscosity.
 pub(crate) fn cell_fluid_field(
-fluid: &FluidModel,
-viscosity_ratio: f64,
-vertex_density: f64,
+    fluid: &FluidModel,
+    viscosity_ratio: f64,
+    vertex_density: f64,
 ) -> Result<ForceField, RunError> {
-let p = fluid.pair;
-let (eta_o, eta_i) = (fluid.viscosity, fluid.viscosity * viscosity_ratio);
+    let p = fluid.pair;
+    let (eta_o, eta_i) = (fluid.viscosity, fluid.viscosity * viscosity_ratio);
     // inner γ: η ∝ γ for this fluid (the kinetic part is 0.2 % of η), so the ratio of the
     // viscosities is the ratio of the γ's to that accuracy (docs/capillary.md)
     let inner = PairParams {

@@ -49,6 +49,7 @@ pub enum Scenario {
     PoiseuilleTube(TubeScenario),
     Couette(CouetteScenario),
     Capillary(crate::capillary::CapillaryScenario),
+    Shear(crate::shear::ShearScenario),
 }
 
 impl Scenario {
@@ -59,6 +60,7 @@ impl Scenario {
             Scenario::PoiseuilleTube(s) => s.seed,
             Scenario::Couette(s) => s.seed,
             Scenario::Capillary(s) => s.seed,
+            Scenario::Shear(s) => s.seed,
         }
     }
     pub fn kind(&self) -> &'static str {
@@ -68,6 +70,7 @@ impl Scenario {
             Scenario::PoiseuilleTube(_) => "poiseuille-tube",
             Scenario::Couette(_) => "couette",
             Scenario::Capillary(_) => "capillary",
+            Scenario::Shear(_) => "shear",
         }
     }
     /// The resolved scenario (defaults filled in, overrides applied) as TOML text.
@@ -160,12 +163,18 @@ pub fn load(path: &Path, sets: &[String]) -> Result<Scenario, ScenarioError> {
         Scenario::PoiseuilleTube(t) => t.base_dir = dir,
         Scenario::Couette(t) => t.base_dir = dir,
         Scenario::Capillary(t) => t.base_dir = dir,
+        Scenario::Shear(t) => t.base_dir = dir,
         Scenario::Stretching(t) => t.base_dir = dir,
         Scenario::DpdFluid(_) => {}
     }
     // the files a scenario names must exist and fit it
     match &s {
         Scenario::Capillary(c) => {
+            if let Some(m) = &c.cell.mesh_file {
+                check_mesh_file(&file, "cell.mesh_file", &c.base_dir, m, c.cell.vertices)?;
+            }
+        }
+        Scenario::Shear(c) => {
             if let Some(m) = &c.cell.mesh_file {
                 check_mesh_file(&file, "cell.mesh_file", &c.base_dir, m, c.cell.vertices)?;
             }
@@ -234,16 +243,17 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
             allowed: format!("{FORMAT_VERSION} (the only version this build reads)"),
         });
     }
-    let kind = match table.get("kind").and_then(|k| k.as_str()) {
-        Some(k) => k.to_string(),
-        None => {
-            return Err(ScenarioError::Missing {
+    let kind =
+        match table.get("kind").and_then(|k| k.as_str()) {
+            Some(k) => k.to_string(),
+            None => return Err(ScenarioError::Missing {
                 file: file.into(),
                 key: "kind".into(),
-                what: "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\", \"capillary\"".into(),
-            })
-        }
-    };
+                what:
+                    "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\", \"capillary\", \"shear\""
+                        .into(),
+            }),
+        };
     let value = toml::Value::Table(table);
     match kind.as_str() {
         "stretching" => {
@@ -271,11 +281,17 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
             crate::capillary::validate(&s, file)?;
             Ok(Scenario::Capillary(s))
         }
+        "shear" => {
+            let s: crate::shear::ShearScenario = value.try_into().map_err(|e| syntax(file, e))?;
+            crate::shear::validate(&s, file)?;
+            Ok(Scenario::Shear(s))
+        }
         other => Err(ScenarioError::Value {
             file: file.into(),
             key: "kind".into(),
             value: format!("{other:?}"),
-            allowed: "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\", \"capillary\"".into(),
+            allowed: "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\", \"capillary\", \"shear\""
+                .into(),
         }),
     }
 }

@@ -13,6 +13,7 @@ pub mod figures;
 pub mod file;
 pub mod fluid;
 pub mod mesh_cache;
+pub mod shear;
 pub mod stretching;
 pub mod units;
 
@@ -117,6 +118,7 @@ pub fn schedule_end(scenario: &Scenario) -> (u64, &'static str) {
             capillary::Plan::new(s).map(|p| p.max_steps()).unwrap_or(u64::MAX),
             "steps",
         ),
+        Scenario::Shear(s) => (shear::Plan::new(s).map(|p| p.steps).unwrap_or(u64::MAX), "steps"),
     }
 }
 
@@ -144,6 +146,7 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
             Scenario::Couette(t) => t.base_dir = dir,
             Scenario::Stretching(t) => t.base_dir = dir,
             Scenario::Capillary(t) => t.base_dir = dir,
+            Scenario::Shear(t) => t.base_dir = dir,
             Scenario::DpdFluid(_) => {}
         }
     }
@@ -176,6 +179,7 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
         Scenario::Couette(s) => channel::run_couette(s, &ctx, Some(&ck))?,
         Scenario::Stretching(s) => stretching::run_from(s, &ctx, Some(&ck))?,
         Scenario::Capillary(s) => capillary::run_from(s, &ctx, Some(&ck))?,
+        Scenario::Shear(s) => shear::run_from(s, &ctx, Some(&ck))?,
     };
     Ok((scenario, results))
 }
@@ -192,5 +196,6 @@ pub fn run(scenario: &Scenario, ctx: &RunContext) -> Result<serde_json::Value, R
         Scenario::PoiseuilleTube(s) => channel::run_tube(s, ctx, None),
         Scenario::Couette(s) => channel::run_couette(s, ctx, None),
         Scenario::Capillary(s) => capillary::run_from(s, ctx, None),
+        Scenario::Shear(s) => shear::run_from(s, ctx, None),
     }
 }
