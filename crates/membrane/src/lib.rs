@@ -6,6 +6,7 @@
 //! * [`meshgen`]: the paper's procedure: uniform points, triangulation, relaxation with link flips.
 //! * [`forces`]: the free energy (Eq. 1) — WLC + C/A, bending, global area and volume — and its exact gradient.
 //! * [`stretch`]: the optical-tweezers stretching experiment at static equilibrium.
+//! * [`viscosity`]: membrane viscosity (Fedosov's link friction and noise), a Shardlow sweep.
 //!
 //! Units: this crate is unit-agnostic; callers pass numbers in one consistent system.
 //! The stretching driver uses µm, pN and pN·µm (so kBT = 4.142e-3 pN·µm at 300 K).
@@ -19,6 +20,7 @@ pub mod meshio;
 pub mod params;
 pub mod shape;
 pub mod stretch;
+pub mod viscosity;
 
 pub use forces::{EnergyTerms, MembraneModel, ReferenceState};
 pub use mesh::{Mesh, MeshError, Topology};

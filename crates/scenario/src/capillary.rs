@@ -30,6 +30,7 @@ use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{FrameScalar, GridSpec, MetaValue, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
 use hemodpd_membrane::cellshape::{self, RestProfile, ShapeMetrics};
 use hemodpd_membrane::coupling::{Cell, CellConfig, CellState, MembraneReflection, WallRepulsion};
+use hemodpd_membrane::viscosity::MembraneViscosity;
 use hemodpd_membrane::forces::MembraneConstants;
 use hemodpd_membrane::params::ModelParams;
 use hemodpd_membrane::shape::EvansFung;
@@ -168,6 +169,10 @@ pub struct CellSection {
     /// A mesh in µm instead of the generated one (its vertex count must equal `vertices`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh_file: Option<PathBuf>,
+    /// 2D membrane viscosity η_m, Pa·s·m = N·s/m (default 0: off, the paper's model;
+    /// physiological ≈ 5e-7–1e-6). Fedosov's link friction with γ_C = γ_T/3 (docs/model.md).
+    #[serde(default)]
+    pub membrane_viscosity_pa_s_m: f64,
 }
 
 /// `[model]`: how SI maps onto the DPD model (docs/units.md).
@@ -344,6 +349,7 @@ impl CapillaryScenario {
             self.characteristic_velocity().max(1e-9),
         );
         sys.viscosity_ratio = self.plasma.viscosity_ratio;
+        sys.membrane_viscosity_n_s_per_m = self.cell.membrane_viscosity_pa_s_m;
         Ok(sys)
     }
 
@@ -415,6 +421,13 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
     }
     range("cell.temperature_k", s.cell.temperature_k, 250.0, 350.0, "250–350 K")?;
     range("cell.persistence_scale", s.cell.persistence_scale, 0.5, 2.0, "0.5–2")?;
+    range(
+        "cell.membrane_viscosity_pa_s_m",
+        s.cell.membrane_viscosity_pa_s_m,
+        0.0,
+        f64::MAX,
+        "≥ 0 and finite, Pa·s·m = N·s/m (0: off; physiological ≈ 5e-7–1e-6)",
+    )?;
     range(
         "cell.area_constraint_n_per_m",
         s.cell.area_constraint_n_per_m,
@@ -775,7 +788,15 @@ impl<'a> Plan<'a> {
             reflection: self.s.model.membrane_reflection,
             kbt: self.fluid.pair.kbt,
             seed: self.s.seed,
+            viscosity: self.membrane_viscosity(),
         }
+    }
+
+    /// The membrane viscosity in model units (Fedosov's γ_C = γ_T/3), or `None` when
+    /// `cell.membrane_viscosity_pa_s_m` is 0.
+    pub fn membrane_viscosity(&self) -> Option<MembraneViscosity> {
+        let eta = self.s.cell.membrane_viscosity_pa_s_m;
+        (eta > 0.0).then(|| MembraneViscosity::from_eta(self.map.membrane_viscosity_to_model(eta)))
     }
 
     /// Body force per fluid particle (model) for a pressure gradient (SI): f = ∇p/n.
@@ -847,7 +868,9 @@ const DRY_RUN_STEPS: u64 = 400;
 /// step the dry run failed at and the largest time step (halving) that passed.
 fn check_membrane_timestep(plan: &Plan, model: &MembraneModel, rest: &Mesh) -> Result<(), RunError> {
     let (kbt, mass) = (plan.fluid.pair.kbt, 1.0);
-    let dry = |dt: f64| hemodpd_membrane::coupling::dry_run(model, &rest.vertices, dt, kbt, mass, DRY_RUN_STEPS);
+    let visc = plan.membrane_viscosity();
+    let dry =
+        |dt: f64| hemodpd_membrane::coupling::dry_run(model, &rest.vertices, dt, kbt, mass, visc.as_ref(), DRY_RUN_STEPS);
     let Some(step) = dry(plan.dt) else {
         return Ok(());
     };
@@ -1506,7 +1529,9 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let session_s = run.session_t0.elapsed().as_secs_f64().max(1e-9);
     let session_steps = (run.sim.step_count() - run.session_step0) as f64;
     let walls_s = run.sim.extension().0.seconds;
-    let known = timers.bounce_s + timers.membrane_forces_s + timers.checks_s + walls_s + run.output_s;
+    let known =
+        timers.bounce_s + timers.membrane_forces_s + timers.checks_s + timers.viscosity_s + walls_s + run.output_s;
+    let visc = plan.membrane_viscosity();
     Ok(json!({
         "unit_mapping": {
             "length_m": m.length_m, "energy_j": m.energy_j, "time_s": m.time_s,
@@ -1518,6 +1543,14 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
         "model": {
             "tube_radius_rc": plan.radius, "tube_length_rc": plan.length, "box_rc": plan.box_lengths.to_array(),
             "particles": run.sim.particles().len(), "vertices": cell.vertices().len(), "timestep": plan.dt,
+        },
+        "membrane_viscosity": {
+            "pa_s_m": plan.s.cell.membrane_viscosity_pa_s_m,
+            "model": visc.map(|v| v.eta()).unwrap_or(0.0),
+            "gamma_t": visc.map(|v| v.gamma_t).unwrap_or(0.0),
+            "gamma_c": visc.map(|v| v.gamma_c).unwrap_or(0.0),
+            "kelvin_voigt_time_s": plan.s.cell.membrane_viscosity_pa_s_m / plan.sys.shear_modulus_n_per_m,
+            "note": "2D membrane viscosity η_m (0: off, the paper's model); model units E τ/r²; Fedosov's link friction with γ_C = γ_T/3, η_m = √3 γ_T + √3 γ_C/4; η_m/μ0 is the Kelvin–Voigt time of the membrane alone",
         },
         "mesh": run.mesh_info,
         "stages": stages,
@@ -1545,6 +1578,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
                     "membrane_forces": timers.membrane_forces_s / session_s,
                     "walls": walls_s / session_s,
                     "crossing_checks": timers.checks_s / session_s,
+                    "membrane_viscosity": timers.viscosity_s / session_s,
                     "sampling_and_frames": run.output_s / session_s,
                 },
                 "note": "shares of this session's wall time (since the run started or resumed); the fluid's pair forces, the integrator and the cell lists are the remainder",
