@@ -877,3 +877,52 @@ fn capillary_fluid_wall_slip() {
         "b = {mean} ± {se}, CAPILLARY_FLUID_WALL_SLIP = {CAPILLARY_FLUID_WALL_SLIP}"
     );
 }
+
+/// Optical-tweezers stretch and release in a wide tube without flow (docs/validation.md,
+/// "Stretch and release"), shortened: 100 pN for 4 ms, released for 4 ms, with and without a
+/// physiological membrane viscosity (6.3e-7 N·s/m). Stretched, the cell's in-plane L/W rises
+/// well above its resting ≈ 1; released, it falls back, Hochmuth's Kelvin–Voigt form fits the
+/// fall, and the membrane viscosity slows both the stretch and the recovery. No fluid crosses
+/// the membrane; area and volume stay within 1 %.
+#[test]
+fn stretch_and_release_with_and_without_membrane_viscosity() {
+    let go = |eta: &str| {
+        let dir = tempfile::tempdir().unwrap();
+        let s = capillary(&[
+            "tube.diameter_um=16.0",
+            "tube.length_um=16.0",
+            "stage=[{name = \"stretch\", duration_s = 0.004, stretch_force_n = 1e-10}, {name = \"release\", duration_s = 0.004}]",
+            "model.thermal_factor=10.841",
+            "output.frame_every_s=0",
+            &format!("cell.membrane_viscosity_pa_s_m={eta}"),
+        ]);
+        run(&s, &RunContext::new(dir.path(), 0, false)).unwrap()
+    };
+    let (plain, visc) = (go("0"), go("6.3e-7"));
+    let lw = |r: &Value, st: &str, k: &str| f(&stage(r, st)["length_over_width"][k]);
+    for (name, r) in [("elastic", &plain), ("viscous", &visc)] {
+        let fit = &stage(r, "release")["length_over_width"]["hochmuth_fit"];
+        eprintln!(
+            "{name}: L/W stretched {:.3} (first {:.3}), released {:.3}; fit {fit}; η_m {}",
+            lw(r, "stretch", "final_quarter_mean"),
+            lw(r, "stretch", "first"),
+            lw(r, "release", "final_quarter_mean"),
+            r["membrane_viscosity"]
+        );
+        assert!(lw(r, "stretch", "first") < 1.15);
+        assert!(lw(r, "release", "first") > 1.3, "{name}: not stretched");
+        assert!(lw(r, "release", "final_quarter_mean") < lw(r, "release", "first"));
+        assert!(f(&fit["recovery_time_s"]) > 0.0);
+        assert_eq!(r["crossings"]["misplaced_total"], 0);
+        for st in ["stretch", "release"] {
+            assert!(f(&stage(r, st)["max_abs_area_deviation"]) < 0.01);
+            assert!(f(&stage(r, st)["max_abs_volume_deviation"]) < 0.01);
+        }
+    }
+    // the membrane viscosity resists the stretch (less stretched after 4 ms) and slows the
+    // recovery
+    assert!(lw(&visc, "release", "first") < lw(&plain, "release", "first"));
+    let tc = |r: &Value| f(&stage(r, "release")["length_over_width"]["hochmuth_fit"]["recovery_time_s"]);
+    assert!(tc(&visc) > 1.5 * tc(&plain), "t_c {} vs {}", tc(&visc), tc(&plain));
+    assert!((f(&visc["membrane_viscosity"]["pa_s_m"]) - 6.3e-7).abs() < 1e-20);
+}

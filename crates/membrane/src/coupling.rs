@@ -222,6 +222,8 @@ pub struct Cell {
     masses: Vec<f64>,
     /// Mass of each vertex (read from the force field at the first viscosity sweep).
     vertex_masses: Vec<f64>,
+    /// Constant external forces on vertices (vertex index, force), e.g. optical tweezers.
+    external: Vec<(u32, DVec3)>,
 }
 
 /// Bounding box of a set of points.
@@ -340,6 +342,7 @@ impl Cell {
             grid_fill: Vec::new(),
             masses: Vec::new(),
             vertex_masses: Vec::new(),
+            external: Vec::new(),
         })
     }
 
@@ -363,6 +366,25 @@ impl Cell {
             unwrapped: self.x.iter().map(|v| v.to_array()).collect(),
             stats: self.stats.clone(),
         }
+    }
+
+    /// Sets constant external forces on vertices (vertex index, force), added to the membrane
+    /// forces at every step until changed (empty: none). Not part of [`CellState`]: the caller
+    /// sets them from its own schedule (a stage) after a restart. Indices must be < N.
+    pub fn set_external_forces(&mut self, forces: Vec<(u32, DVec3)>) -> Result<(), EngineError> {
+        if let Some((k, f)) = forces.iter().find(|(k, f)| *k as usize >= self.x.len() || !f.is_finite()) {
+            return Err(EngineError::invalid(
+                "cell external forces",
+                format!("vertex {k} with force {f} (need an index < {} and a finite force)", self.x.len()),
+            ));
+        }
+        self.external = forces;
+        Ok(())
+    }
+
+    /// The constant external forces on vertices.
+    pub fn external_forces(&self) -> &[(u32, DVec3)] {
+        &self.external
     }
 
     /// The membrane model.
@@ -649,6 +671,9 @@ impl Extension for Cell {
         let first = self.config.first;
         for (k, f) in self.forces.iter().enumerate() {
             s.force[first + k] += *f;
+        }
+        for &(k, f) in &self.external {
+            s.force[first + k as usize] += f;
         }
         if let Some(w) = self.config.wall {
             for k in 0..self.x.len() {

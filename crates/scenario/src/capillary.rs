@@ -226,6 +226,11 @@ pub struct StageSection {
     /// Pressure gradient, mmHg/mm.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pressure_gradient_mmhg_per_mm: Option<f64>,
+    /// Optical-tweezers stretch during the stage, N: this force pulls the 5 % of the vertices
+    /// with the largest x (at rest) towards +x and the 5 % with the smallest x towards −x
+    /// (across the tube, in the plane of the disc), shared equally; none when absent.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stretch_force_n: Option<f64>,
     /// End as soon as steady (default false).
     #[serde(default)]
     pub until_steady: bool,
@@ -537,6 +542,9 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
             )?;
         }
         range(&key("steady_tolerance"), st.steady_tolerance, 1e-4, 0.5, "1e-4–0.5")?;
+        if let Some(f) = st.stretch_force_n {
+            range(&key("stretch_force_n"), f, 0.0, 1e-9, "0–1e-9 N (0–1000 pN)")?;
+        }
     }
     // the cell must fit: its diameter plus two repulsion ranges inside the tube
     let d0 = 2.0 * EvansFung::healthy_um().r;
@@ -860,6 +868,10 @@ pub fn describe_engine_error(e: hemodpd_engine::EngineError) -> RunError {
 pub type CapillarySim = Simulation<(Timed<Walls>, Cell)>;
 
 /// Builds the simulation at step 0.
+/// Fraction of the vertices at each end that a stage's `stretch_force_n` pulls (the paper's
+/// optical-tweezers contact, as in the stretching scenario).
+const STRETCH_END_FRACTION: f64 = 0.05;
+
 /// Steps of the membrane's dry run before a capillary run ([`hemodpd_membrane::coupling::dry_run`]).
 const DRY_RUN_STEPS: u64 = 400;
 
@@ -953,6 +965,9 @@ pub struct Sample {
     pub membrane_kbt: f64,
     /// Body force per fluid particle.
     pub body_force: f64,
+    /// In-plane length over width of the cell, L/W ([`length_over_width`]).
+    #[serde(default)]
+    pub length_over_width: f64,
 }
 
 fn observe(
@@ -986,6 +1001,7 @@ fn observe(
         stage,
         stage_time,
         shape: cellshape::metrics(x, AXIS, rest),
+        length_over_width: length_over_width(x),
         cell_velocity: vmean[AXIS],
         fluid_velocity: flux_velocity(plan, sum / count.max(1) as f64),
         area_deviation: a / model.area0() - 1.0,
@@ -1083,7 +1099,27 @@ impl Run<'_> {
         };
         self.st.body_force = force;
         self.st.controller = ctl;
+        self.apply_stretch()?;
         self.apply_force()
+    }
+
+    /// Sets the stage's optical-tweezers forces on the cell (a function of the stage alone, so
+    /// it is set again on resume).
+    fn apply_stretch(&mut self) -> Result<(), RunError> {
+        let f_n = self.stage().stretch_force_n.unwrap_or(0.0);
+        let forces = if f_n > 0.0 {
+            let (high, low) = hemodpd_membrane::stretch::loaded_vertices(&self.rest.vertices, STRETCH_END_FRACTION);
+            let f = self.plan.map.force_to_model(f_n);
+            let mut v: Vec<(u32, DVec3)> = high
+                .iter()
+                .map(|&k| (k as u32, DVec3::new(f / high.len() as f64, 0.0, 0.0)))
+                .collect();
+            v.extend(low.iter().map(|&k| (k as u32, DVec3::new(-f / low.len() as f64, 0.0, 0.0))));
+            v
+        } else {
+            Vec::new()
+        };
+        self.sim.extension_mut().1.set_external_forces(forces).map_err(engine_err)
     }
 
     fn apply_force(&mut self) -> Result<(), RunError> {
@@ -1405,6 +1441,118 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, Protocol
 // ---------------------------------------------------------------------------------------------
 // Results
 
+/// The cell's length over width in the plane across the tube (x, y; the plane of the resting
+/// disc and of the stretch), as seen face on, the way Hochmuth et al. measured it: the extents
+/// of the vertices along the principal axes of their (x, y) covariance, the larger over the
+/// smaller (so it does not depend on how the cell has turned about the tube axis).
+pub fn length_over_width(x: &[DVec3]) -> f64 {
+    let n = x.len().max(1) as f64;
+    let c = x.iter().fold(DVec3::ZERO, |a, p| a + *p) / n;
+    let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
+    for p in x {
+        let d = *p - c;
+        sxx += d.x * d.x;
+        syy += d.y * d.y;
+        sxy += d.x * d.y;
+    }
+    let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    let (u, w) = (DVec3::new(theta.cos(), theta.sin(), 0.0), DVec3::new(-theta.sin(), theta.cos(), 0.0));
+    let extent = |a: DVec3| {
+        let (lo, hi) = x
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| (lo.min(p.dot(a)), hi.max(p.dot(a))));
+        hi - lo
+    };
+    let (l, w) = (extent(u), extent(w));
+    l.max(w) / l.min(w)
+}
+
+/// A fit of Hochmuth's Kelvin–Voigt recovery to L/W = λ(t):
+/// ((λ² − λ∞²)(λ0² + λ∞²)) / ((λ² + λ∞²)(λ0² − λ∞²)) = exp(−t/t_c).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct HochmuthFit {
+    /// Recovery time t_c (the unit of `t`).
+    pub t_c: f64,
+    /// λ0 = λ(t0), the first point.
+    pub lambda_0: f64,
+    /// λ∞, fitted.
+    pub lambda_inf: f64,
+    /// Root-mean-square residual of λ.
+    pub rms: f64,
+}
+
+/// Fits Hochmuth's recovery (see [`HochmuthFit`]) to `lambda` at times `t` (from `t[0]`):
+/// λ0 is the first point; t_c and λ∞ minimise Σ(λ_model − λ)², λ∞ searched over
+/// [0.8, min λ] on a grid refined three times, t_c by golden section on ln t_c for each λ∞.
+/// `None` with fewer than 4 points, or when λ does not fall.
+pub fn fit_hochmuth(t: &[f64], lambda: &[f64]) -> Option<HochmuthFit> {
+    let n = t.len().min(lambda.len());
+    if n < 4 || !t[..n].iter().chain(&lambda[..n]).all(|v| v.is_finite()) {
+        return None;
+    }
+    let l0 = lambda[0];
+    let lmin = lambda[..n].iter().cloned().fold(f64::INFINITY, f64::min);
+    if lmin >= l0 {
+        return None;
+    }
+    let model = |tt: f64, tc: f64, li: f64| {
+        let k = (l0 * l0 - li * li) / (l0 * l0 + li * li);
+        let y = k * (-(tt - t[0]) / tc).exp();
+        li * ((1.0 + y) / (1.0 - y)).sqrt()
+    };
+    let sse = |tc: f64, li: f64| (0..n).map(|i| (model(t[i], tc, li) - lambda[i]).powi(2)).sum::<f64>();
+    let span = (t[n - 1] - t[0]).max(1e-300);
+    let best_tc = |li: f64| {
+        // golden section on ln t_c over [span/1e4, span·100]
+        let (mut a, mut b) = ((span * 1e-4).ln(), (span * 1e2).ln());
+        let g = 0.5 * (5f64.sqrt() - 1.0);
+        let f = |x: f64| sse(x.exp(), li);
+        let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
+        let (mut fc, mut fd) = (f(c), f(d));
+        for _ in 0..80 {
+            if fc < fd {
+                b = d;
+                d = c;
+                fd = fc;
+                c = b - g * (b - a);
+                fc = f(c);
+            } else {
+                a = c;
+                c = d;
+                fc = fd;
+                d = a + g * (b - a);
+                fd = f(d);
+            }
+        }
+        let x = 0.5 * (a + b);
+        (x.exp(), f(x))
+    };
+    let (mut lo, mut hi) = (0.8f64.min(lmin * 0.9), lmin.min(l0 * (1.0 - 1e-9)));
+    let mut best = (f64::NAN, f64::NAN, f64::INFINITY);
+    for _ in 0..4 {
+        let m = 40;
+        for k in 0..=m {
+            let li = lo + (hi - lo) * k as f64 / m as f64;
+            if li >= l0 {
+                continue;
+            }
+            let (tc, e) = best_tc(li);
+            if e < best.2 {
+                best = (tc, li, e);
+            }
+        }
+        let h = (hi - lo) / 40.0;
+        lo = (best.1 - 2.0 * h).max(lo);
+        hi = (best.1 + 2.0 * h).min(hi);
+    }
+    best.2.is_finite().then(|| HochmuthFit {
+        t_c: best.0,
+        lambda_0: l0,
+        lambda_inf: best.1,
+        rms: (best.2 / n as f64).sqrt(),
+    })
+}
+
 /// Mean of `f` over the last quarter of a stage's samples.
 fn tail_mean(samples: &[&Sample], f: impl Fn(&Sample) -> f64) -> f64 {
     let n = samples.len();
@@ -1450,11 +1598,11 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let mut stages = Vec::new();
     // time series CSV, SI
     let mut csv = String::from(
-        "time_s,stage,stage_time_s,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio,body_force_n\n",
+        "time_s,stage,stage_time_s,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio,body_force_n,length_over_width\n",
     );
     for s in &run.st.samples {
         csv += &format!(
-            "{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
+            "{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
             s.step as f64 * plan.dt * t,
             s.stage,
             s.stage_time * t,
@@ -1469,6 +1617,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             s.volume_deviation,
             s.membrane_kbt / fluid_kbt,
             s.body_force * m.force_unit_n(),
+            s.length_over_width,
         );
     }
     let path = ctx.out_dir.join("cell.csv");
@@ -1479,6 +1628,8 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
         let ts: Vec<f64> = smp.iter().map(|s| s.stage_time * t).collect();
         let dist: Vec<f64> = smp.iter().map(|s| s.shape.distance_from_rest * l).collect();
         let di: Vec<f64> = smp.iter().map(|s| s.shape.deformation_index).collect();
+        let lw: Vec<f64> = smp.iter().map(|s| s.length_over_width).collect();
+        let hochmuth = fit_hochmuth(&ts, &lw);
         let (a_max, v_max) = smp.iter().fold((0.0f64, 0.0f64), |(a, b), s| {
             (a.max(s.area_deviation.abs()), b.max(s.volume_deviation.abs()))
         });
@@ -1506,6 +1657,15 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             "recovery_time_s": {
                 "distance_from_rest": decay_time(&ts, &dist),
                 "deformation_index": decay_time(&ts, &di),
+            },
+            "length_over_width": {
+                "first": lw.first().copied().unwrap_or(f64::NAN),
+                "final_quarter_mean": tail_mean(&smp, |s| s.length_over_width),
+                "stretch_force_n": st.stretch_force_n.unwrap_or(0.0),
+                "hochmuth_fit": hochmuth.map(|h| json!({
+                    "recovery_time_s": h.t_c, "lambda_0": h.lambda_0, "lambda_inf": h.lambda_inf, "rms": h.rms,
+                })),
+                "note": "in-plane L/W across the tube (capillary::length_over_width); the fit is Hochmuth 1979's Kelvin–Voigt recovery ((λ²−λ∞²)(λ0²+λ∞²))/((λ²+λ∞²)(λ0²−λ∞²)) = exp(−t/t_c) from the stage's first sample (meaningful for a stage that releases a stretch)",
             },
             "max_abs_area_deviation": a_max,
             "max_abs_volume_deviation": v_max,
@@ -1653,6 +1813,8 @@ pub fn run_from(
     let resumed = checkpoint.is_some();
     if !resumed {
         run.start_stage()?;
+    } else if run.st.stage < plan.s.stage.len() {
+        run.apply_stretch()?;
     }
     for w in &plan.map.warnings {
         if ctx.progress {
