@@ -142,3 +142,55 @@ fn noise_is_counter_based() {
     assert_ne!(link_gaussians(k, 3), link_gaussians(k, 4));
     assert_ne!(link_gaussians(k, 3), link_gaussians(step_key(5 ^ VISCOSITY_SALT, 10), 3));
 }
+
+/// The limit of the splitting, measured: a link with a spring (k = 1, no noise) relaxing under
+/// velocity Verlet followed by the sweep, as in the run. Its extension decays at k/γ_eff with
+/// γ_eff = μ / (Δt (a/(1 − a) + ½)), a = exp(−(γ_T + γ_C)Δt/μ) (the drift of the split
+/// scheme: each step the velocity gained from the force, F Δt/μ, is carried over a/(1 − a)
+/// steps plus the half-step of the drift). For γΔt/μ ≪ 1 this is γ; for γΔt/μ ≫ 1 it saturates
+/// at 2μ/Δt: the sweep stays stable and thermally exact, but a friction above ~2μ/Δt acts as
+/// 2μ/Δt on the slow (overdamped) motion. Checked within 2 % at γ_T + γ_C = 13.3 (γ_eff ≈ γ)
+/// and 9923 (γ_eff = 400 = 2μ/Δt, 25 × less than γ).
+#[test]
+fn split_scheme_friction_saturates_at_two_mu_over_dt() {
+    let (dt, mu, k) = (0.0025, 0.5, 1.0);
+    for gamma_t in [10.0, 7442.5] {
+        let visc = MembraneViscosity { gamma_t, gamma_c: gamma_t / 3.0 };
+        let a = (-(visc.gamma_t + visc.gamma_c) * dt / mu).exp();
+        let gamma_eff = mu / (dt * (a / (1.0 - a) + 0.5));
+        let links = [[0u32, 1u32]];
+        let mass = [1.0, 1.0];
+        let (l0, x0) = (1.0, 0.5);
+        let mut x = [DVec3::new(l0 + x0, 0.0, 0.0), DVec3::ZERO];
+        let mut v = [DVec3::ZERO; 2];
+        let force = |x: &[DVec3; 2]| {
+            let d = x[0] - x[1];
+            let f = -k * (d.length() - l0) * d.normalize();
+            [f, -f]
+        };
+        let mut f = force(&x);
+        // run over about one relaxation time, measure the decay rate after the transient
+        let steps = (gamma_eff / k / dt) as u64;
+        let mut ext = Vec::new();
+        for step in 0..steps {
+            for i in 0..2 {
+                v[i] += f[i] * (0.5 * dt / mass[i]);
+                x[i] += v[i] * dt;
+            }
+            f = force(&x);
+            for i in 0..2 {
+                v[i] += f[i] * (0.5 * dt / mass[i]);
+            }
+            shardlow_sweep(&links, &x, &mut v, &mass, &visc, 0.0, dt, 1, step);
+            ext.push((x[0] - x[1]).length() - l0);
+        }
+        let (i, j) = (steps as usize / 4, steps as usize - 1);
+        let rate = (ext[i] / ext[j]).ln() / ((j - i) as f64 * dt);
+        eprintln!(
+            "γ_T + γ_C = {:.1}: γ_eff predicted {gamma_eff:.2}, measured {:.2}",
+            visc.gamma_t + visc.gamma_c,
+            k / rate
+        );
+        assert!(((k / rate) / gamma_eff - 1.0).abs() < 0.02);
+    }
+}
