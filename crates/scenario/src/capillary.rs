@@ -1938,6 +1938,39 @@ pub fn write_measures_csv(path: &std::path::Path, rows: &[FrameMeasures]) -> Res
 mod tests {
     use super::*;
 
+    /// Hochmuth's form is inverted exactly: a synthetic Kelvin–Voigt recovery (λ0 = 2,
+    /// λ∞ = 1.1, t_c = 0.12 s, 25 points over 0.4 s like the experimental series) gives back
+    /// t_c and λ∞ to 1e-4; a rising series gives no fit. L/W of a disc is 1, of an ellipse
+    /// a/b whatever its angle about the tube axis.
+    #[test]
+    fn hochmuth_fit_and_length_over_width() {
+        let (l0, li, tc) = (2.0f64, 1.1f64, 0.12);
+        let k = (l0 * l0 - li * li) / (l0 * l0 + li * li);
+        let t: Vec<f64> = (0..25).map(|i| 0.001 + i as f64 * 0.4 / 24.0).collect();
+        let lam: Vec<f64> = t
+            .iter()
+            .map(|&tt| {
+                let y = k * (-(tt - 0.001) / tc).exp();
+                li * ((1.0 + y) / (1.0 - y)).sqrt()
+            })
+            .collect();
+        let h = fit_hochmuth(&t, &lam).unwrap();
+        assert!((h.t_c / tc - 1.0).abs() < 1e-4, "{h:?}");
+        assert!((h.lambda_inf / li - 1.0).abs() < 1e-4, "{h:?}");
+        let rising: Vec<f64> = lam.iter().rev().cloned().collect();
+        assert!(fit_hochmuth(&t, &rising).is_none());
+        for angle in [0.0f64, 0.4, 1.3] {
+            let pts: Vec<DVec3> = (0..360)
+                .map(|i| {
+                    let p = (i as f64).to_radians();
+                    let (x, y) = (3.0 * p.cos(), 1.5 * p.sin());
+                    DVec3::new(x * angle.cos() - y * angle.sin(), x * angle.sin() + y * angle.cos(), 0.1 * p.cos())
+                })
+                .collect();
+            assert!((length_over_width(&pts) - 2.0).abs() < 1e-3, "angle {angle}");
+        }
+    }
+
     /// The 1/e time of an exponential decay towards a level, from samples.
     #[test]
     fn decay_time_of_an_exponential() {
