@@ -877,3 +877,142 @@ fn capillary_fluid_wall_slip() {
         "b = {mean} ± {se}, CAPILLARY_FLUID_WALL_SLIP = {CAPILLARY_FLUID_WALL_SLIP}"
     );
 }
+
+/// Optical-tweezers stretch and release in a wide tube without flow (docs/validation.md,
+/// "Stretch and release"), shortened: 100 pN for 4 ms, released for 4 ms, with and without a
+/// physiological membrane viscosity (6.3e-7 N·s/m). Stretched, the cell's in-plane L/W rises
+/// well above its resting ≈ 1; released, it falls back, Hochmuth's Kelvin–Voigt form fits the
+/// fall, and the membrane viscosity slows both the stretch and the recovery. No fluid crosses
+/// the membrane; area and volume stay within 1 %.
+#[test]
+fn stretch_and_release_with_and_without_membrane_viscosity() {
+    let go = |eta: &str| {
+        let dir = tempfile::tempdir().unwrap();
+        let s = capillary(&[
+            "tube.diameter_um=16.0",
+            "tube.length_um=16.0",
+            "stage=[{name = \"stretch\", duration_s = 0.004, stretch_force_n = 1e-10}, {name = \"release\", duration_s = 0.004}]",
+            "model.thermal_factor=10.841",
+            "output.frame_every_s=0",
+            &format!("cell.membrane_viscosity_pa_s_m={eta}"),
+        ]);
+        run(&s, &RunContext::new(dir.path(), 0, false)).unwrap()
+    };
+    let (plain, visc) = (go("0"), go("6.3e-7"));
+    let lw = |r: &Value, st: &str, k: &str| f(&stage(r, st)["length_over_width"][k]);
+    for (name, r) in [("elastic", &plain), ("viscous", &visc)] {
+        let fit = &stage(r, "release")["length_over_width"]["hochmuth_fit"];
+        eprintln!(
+            "{name}: L/W stretched {:.3} (first {:.3}), released {:.3}; fit {fit}; η_m {}",
+            lw(r, "stretch", "final_quarter_mean"),
+            lw(r, "stretch", "first"),
+            lw(r, "release", "final_quarter_mean"),
+            r["membrane_viscosity"]
+        );
+        assert!(lw(r, "stretch", "first") < 1.15);
+        assert!(lw(r, "release", "first") > 1.3, "{name}: not stretched");
+        assert!(lw(r, "release", "final_quarter_mean") < lw(r, "release", "first"));
+        assert!(f(&fit["recovery_time_s"]) > 0.0);
+        assert_eq!(r["crossings"]["misplaced_total"], 0);
+        for st in ["stretch", "release"] {
+            assert!(f(&stage(r, st)["max_abs_area_deviation"]) < 0.01);
+            assert!(f(&stage(r, st)["max_abs_volume_deviation"]) < 0.01);
+        }
+    }
+    // the membrane viscosity resists the stretch (less stretched after 4 ms) and slows the
+    // recovery
+    assert!(lw(&visc, "release", "first") < lw(&plain, "release", "first"));
+    let tc = |r: &Value| f(&stage(r, "release")["length_over_width"]["hochmuth_fit"]["recovery_time_s"]);
+    assert!(tc(&visc) > 1.5 * tc(&plain), "t_c {} vs {}", tc(&visc), tc(&plain));
+    assert!((f(&visc["membrane_viscosity"]["pa_s_m"]) - 6.3e-7).abs() < 1e-20);
+}
+
+/// Hochmuth et al. 1979 (tests/data/relaxation_hochmuth1979_trbcuq.csv): (cell, t s, L/W).
+fn hochmuth_1979() -> Vec<(u32, f64, f64)> {
+    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/relaxation_hochmuth1979_trbcuq.csv"))
+        .unwrap()
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.starts_with("cell"))
+        .filter_map(|l| {
+            let c: Vec<f64> = l.split(',').filter_map(|x| x.parse().ok()).collect();
+            (c.len() == 3).then(|| (c[0] as u32, c[1], c[2]))
+        })
+        .collect()
+}
+
+/// The stretch-and-release validation behind docs/validation.md ("Stretch and release against
+/// Hochmuth 1979") and the capillary recovery with a membrane viscosity: prints the tables.
+/// About 10 minutes on 2 cores:
+/// `cargo test --release --test capillary membrane_viscosity_validation -- --ignored --nocapture`.
+/// Asserts only that the fits exist and that the viscosity slows the recovery.
+#[test]
+#[ignore]
+fn membrane_viscosity_validation() {
+    use hemodpd_scenario::capillary::fit_hochmuth;
+    let (_figs, work) = validation_setup();
+    let work = work.path();
+    println!("| | t_c (ms) | λ0 | λ∞ | rms |");
+    println!("|---|---|---|---|---|");
+    let data = hochmuth_1979();
+    for cell in 1..=4 {
+        let (t, l): (Vec<f64>, Vec<f64>) = data.iter().filter(|d| d.0 == cell).map(|d| (d.1, d.2)).unzip();
+        let h = fit_hochmuth(&t, &l).unwrap();
+        println!(
+            "| Hochmuth 1979 cell {cell} | {:.1} | {:.3} | {:.3} | {:.3} |",
+            h.t_c * 1e3,
+            h.lambda_0,
+            h.lambda_inf,
+            h.rms
+        );
+    }
+    let mut tcs = Vec::new();
+    for eta in ["0", "6.3e-7"] {
+        let (r, _) = go(
+            work,
+            &format!("stretch_{eta}"),
+            &[
+                "tube.diameter_um=20.0",
+                "tube.length_um=16.0",
+                "stage=[{name = \"stretch\", duration_s = 0.03, stretch_force_n = 1e-10}, {name = \"release\", duration_s = 0.1}]",
+                "model.thermal_factor=10.841",
+                "output.frame_every_s=0",
+                &format!("cell.membrane_viscosity_pa_s_m={eta}"),
+            ],
+        );
+        let rel = &stage(&r, "release")["length_over_width"];
+        let h = &rel["hochmuth_fit"];
+        println!(
+            "| this model, η_m = {eta} N·s/m (100 pN, L/W stretched {:.3}) | {:.1} | {:.3} | {:.3} | {:.3} |",
+            f(&stage(&r, "stretch")["length_over_width"]["final_quarter_mean"]),
+            f(&h["recovery_time_s"]) * 1e3,
+            f(&h["lambda_0"]),
+            f(&h["lambda_inf"]),
+            f(&h["rms"])
+        );
+        assert_eq!(r["crossings"]["misplaced_total"], 0);
+        tcs.push(f(&h["recovery_time_s"]));
+    }
+    assert!(tcs[1] > tcs[0]);
+    // the capillary recovery (the shipped protocol, shortened: 20 ms of flow at 1 mm/s, 50 ms
+    // of recovery), with and without
+    for eta in ["0", "6.3e-7"] {
+        let (r, _) = go(
+            work,
+            &format!("capillary_{eta}"),
+            &[
+                "stage=[{name = \"rest\", duration_s = 0.001}, {name = \"parachute\", duration_s = 0.02, mean_velocity_m_per_s = 1e-3}, {name = \"recovery\", duration_s = 0.05}]",
+                "output.frame_every_s=0",
+                &format!("cell.membrane_viscosity_pa_s_m={eta}"),
+            ],
+        );
+        let rec = stage(&r, "recovery");
+        println!(
+            "capillary recovery, η_m = {eta}: 1/e time of the distance from rest {:.2} ms; parachute length {:.3} µm; distance {:.3} -> {:.3} µm",
+            f(&rec["recovery_time_s"]["distance_from_rest"]) * 1e3,
+            q(&r, "parachute", "axial_length_um"),
+            q(&r, "parachute", "distance_from_rest_um"),
+            q(&r, "recovery", "distance_from_rest_um"),
+        );
+        assert_eq!(r["crossings"]["misplaced_total"], 0);
+    }
+}

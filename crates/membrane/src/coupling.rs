@@ -13,7 +13,10 @@
 //!    impulses go to the triangle's vertices (linear and angular momentum conserved);
 //! 2. [`Extension::add_forces`]: the membrane forces of Eq. 1 on the unwrapped positions, and a
 //!    short-range repulsion from the wall so that the cell never enters it;
-//! 3. [`Extension::end_of_step`]: every `check_every` steps, an inside test (generalised
+//! 3. [`Extension::end_of_step`]: the membrane viscosity, when there is one
+//!    ([`CellConfig::viscosity`]): a Shardlow sweep over the links that updates the vertex
+//!    velocities by the exact solution of each link's dissipative and random forces
+//!    ([`crate::viscosity`]); then, every `check_every` steps, an inside test (generalised
 //!    winding number) of every inner and outer fluid particle near the cell; a particle on the
 //!    wrong side is a missed crossing, counted in [`CellStats::misplaced`].
 //!
@@ -35,6 +38,7 @@ use std::time::Instant;
 
 use crate::forces::ForceWorkspace;
 use crate::mesh::winding_number;
+use crate::viscosity::{shardlow_sweep, MembraneViscosity};
 use crate::MembraneModel;
 
 /// Distance off the end-of-step triangle, relative to its longest edge, at which a bounced
@@ -62,6 +66,9 @@ fn maxwell_velocity(key: u64, id: u32, n: DVec3, vth: f64) -> DVec3 {
     let t2 = n.cross(t1);
     n * normal + t1 * (r * phi.cos()) + t2 * (r * phi.sin())
 }
+
+/// Seed of the membrane-viscosity noise in [`dry_run`].
+const DRY_RUN_SEED: u64 = 0x2545_f491;
 
 /// Meshes with at least this many vertices use the parallel force evaluation.
 const PARALLEL_FORCES_FROM: usize = 4000;
@@ -138,8 +145,12 @@ pub struct CellConfig {
     pub reflection: MembraneReflection,
     /// Thermal energy kBT of the fluid (for [`MembraneReflection::Maxwell`]).
     pub kbt: f64,
-    /// Seed of the Maxwell reflections' random numbers.
+    /// Seed of the Maxwell reflections' and the membrane viscosity's random numbers.
     pub seed: u64,
+    /// Membrane viscosity (Fedosov's dissipative and random link forces at the fluid's `kbt`),
+    /// or `None`: the paper's model, no work done. Applied at the end of every step.
+    #[serde(default)]
+    pub viscosity: Option<MembraneViscosity>,
 }
 
 /// Counters of a [`Cell`] (part of its checkpointed state).
@@ -172,6 +183,7 @@ pub struct CellTimers {
     pub bounce_s: f64,
     pub membrane_forces_s: f64,
     pub checks_s: f64,
+    pub viscosity_s: f64,
 }
 
 /// One bounce found in the parallel pass, applied in particle order afterwards.
@@ -208,6 +220,10 @@ pub struct Cell {
     grid_fill: Vec<u32>,
     /// Mass of each particle type (read from the force field at the first step).
     masses: Vec<f64>,
+    /// Mass of each vertex (read from the force field at the first viscosity sweep).
+    vertex_masses: Vec<f64>,
+    /// Constant external forces on vertices (vertex index, force), e.g. optical tweezers.
+    external: Vec<(u32, DVec3)>,
 }
 
 /// Bounding box of a set of points.
@@ -296,6 +312,17 @@ impl Cell {
                 ));
             }
         }
+        if let Some(v) = &config.viscosity {
+            if !(v.is_valid() && config.kbt.is_finite() && config.kbt >= 0.0) {
+                return Err(EngineError::invalid(
+                    "cell membrane viscosity",
+                    format!(
+                        "gamma_t {}, gamma_c {} and kbt {} (need all finite and ≥ 0)",
+                        v.gamma_t, v.gamma_c, config.kbt
+                    ),
+                ));
+            }
+        }
         let n = unwrapped.len();
         let workspace = (n >= PARALLEL_FORCES_FROM).then(|| model.workspace());
         Ok(Cell {
@@ -314,6 +341,8 @@ impl Cell {
             tri_boxes: Vec::new(),
             grid_fill: Vec::new(),
             masses: Vec::new(),
+            vertex_masses: Vec::new(),
+            external: Vec::new(),
         })
     }
 
@@ -337,6 +366,31 @@ impl Cell {
             unwrapped: self.x.iter().map(|v| v.to_array()).collect(),
             stats: self.stats.clone(),
         }
+    }
+
+    /// Sets constant external forces on vertices (vertex index, force), added to the membrane
+    /// forces at every step until changed (empty: none). Not part of [`CellState`]: the caller
+    /// sets them from its own schedule (a stage) after a restart. Indices must be < N.
+    pub fn set_external_forces(&mut self, forces: Vec<(u32, DVec3)>) -> Result<(), EngineError> {
+        if let Some((k, f)) = forces
+            .iter()
+            .find(|(k, f)| *k as usize >= self.x.len() || !f.is_finite())
+        {
+            return Err(EngineError::invalid(
+                "cell external forces",
+                format!(
+                    "vertex {k} with force {f} (need an index < {} and a finite force)",
+                    self.x.len()
+                ),
+            ));
+        }
+        self.external = forces;
+        Ok(())
+    }
+
+    /// The constant external forces on vertices.
+    pub fn external_forces(&self) -> &[(u32, DVec3)] {
+        &self.external
     }
 
     /// The membrane model.
@@ -633,6 +687,9 @@ impl Extension for Cell {
         for (k, f) in self.forces.iter().enumerate() {
             s.force[first + k] += *f;
         }
+        for &(k, f) in &self.external {
+            s.force[first + k as usize] += f;
+        }
         if let Some(w) = self.config.wall {
             for k in 0..self.x.len() {
                 s.force[first + k] += w.force(s.pos[first + k]);
@@ -643,6 +700,40 @@ impl Extension for Cell {
     }
 
     fn end_of_step(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        if let Some(visc) = self.config.viscosity {
+            let t0 = Instant::now();
+            let range = self.vertex_range();
+            if self.vertex_masses.len() != self.x.len() {
+                let types = s.field.types();
+                self.vertex_masses = s.ptype[range.clone()].iter().map(|&t| types[t as usize].mass).collect();
+            }
+            // Lees–Edwards: a vertex whose wrapped image is k periods below its unwrapped
+            // position moves, in the cell's frame, k U faster along x; the sweep works there
+            let (u, ly) = (s.domain.shear_velocity(), s.domain.lengths().y);
+            let shift = |k: usize, x: &[DVec3], pos: &[DVec3]| DVec3::X * (u * ((x[k].y - pos[k].y) / ly).round());
+            if u != 0.0 {
+                for (k, v) in s.vel[range.clone()].iter_mut().enumerate() {
+                    *v += shift(k, &self.x, &s.pos[range.clone()]);
+                }
+            }
+            shardlow_sweep(
+                self.model.links(),
+                &self.x,
+                &mut s.vel[range.clone()],
+                &self.vertex_masses,
+                &visc,
+                self.config.kbt,
+                s.dt,
+                self.config.seed,
+                s.step,
+            );
+            if u != 0.0 {
+                for (k, v) in s.vel[range.clone()].iter_mut().enumerate() {
+                    *v -= shift(k, &self.x, &s.pos[range.clone()]);
+                }
+            }
+            self.timers.viscosity_s += t0.elapsed().as_secs_f64();
+        }
         let every = self.config.check_every;
         if every > 0 && s.step % every == 0 {
             let t0 = Instant::now();
@@ -657,13 +748,22 @@ impl Extension for Cell {
     }
 }
 
-/// A dry run of the membrane alone (no fluid, no damping): the vertices start at `rest` with
-/// thermal velocities of `kbt`/`mass` (a fixed stream, so the answer is reproducible) and are
-/// integrated by velocity Verlet for `steps` steps of `dt`. Returns the step at which it failed
+/// A dry run of the membrane alone (no fluid, no damping but the membrane viscosity): the
+/// vertices start at `rest` with thermal velocities of `kbt`/`mass` (a fixed stream, so the
+/// answer is reproducible) and are integrated by velocity Verlet for `steps` steps of `dt`,
+/// each followed by the Shardlow sweep of `viscosity` when there is one (as in the run). Returns the step at which it failed
 /// (a force error such as a link reaching Lmax, or the kinetic energy growing 100-fold), or
 /// `None` if it stayed stable. Velocity Verlet is stable for dt·ω_max < 2, so a failure here
 /// means the time step cannot resolve the membrane's stiffest mode, whatever the fluid adds.
-pub fn dry_run(model: &MembraneModel, rest: &[DVec3], dt: f64, kbt: f64, mass: f64, steps: u64) -> Option<u64> {
+pub fn dry_run(
+    model: &MembraneModel,
+    rest: &[DVec3],
+    dt: f64,
+    kbt: f64,
+    mass: f64,
+    viscosity: Option<&MembraneViscosity>,
+    steps: u64,
+) -> Option<u64> {
     let n = rest.len();
     let mut x = rest.to_vec();
     let mut v = vec![DVec3::ZERO; n];
@@ -689,6 +789,7 @@ pub fn dry_run(model: &MembraneModel, rest: &[DVec3], dt: f64, kbt: f64, mass: f
         return Some(0);
     }
     let h = 0.5 * dt / mass;
+    let masses = vec![mass; n];
     for step in 1..=steps {
         for k in 0..n {
             v[k] += f[k] * h;
@@ -700,6 +801,9 @@ pub fn dry_run(model: &MembraneModel, rest: &[DVec3], dt: f64, kbt: f64, mass: f
         }
         for k in 0..n {
             v[k] += f[k] * h;
+        }
+        if let Some(visc) = viscosity {
+            shardlow_sweep(model.links(), &x, &mut v, &masses, visc, kbt, dt, DRY_RUN_SEED, step);
         }
         let k = kinetic(&v);
         if !k.is_finite() || k > 100.0 * k0 {

@@ -7,6 +7,7 @@
 //! * [`forces`]: the free energy (Eq. 1) — WLC + C/A, bending, global area and volume — and its exact gradient.
 //! * [`stretch`]: the optical-tweezers stretching experiment at static equilibrium.
 //! * [`motion`]: tumbling, tank-treading, swinging or intermittent motion of a cell in shear flow.
+//! * [`viscosity`]: membrane viscosity (Fedosov's link friction and noise), a Shardlow sweep.
 //!
 //! Units: this crate is unit-agnostic; callers pass numbers in one consistent system.
 //! The stretching driver uses µm, pN and pN·µm (so kBT = 4.142e-3 pN·µm at 300 K).
@@ -21,6 +22,7 @@ pub mod motion;
 pub mod params;
 pub mod shape;
 pub mod stretch;
+pub mod viscosity;
 
 pub use forces::{EnergyTerms, MembraneModel, ReferenceState};
 pub use mesh::{Mesh, MeshError, Topology};

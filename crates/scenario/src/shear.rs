@@ -16,8 +16,9 @@
 //! `analysis_start_strain`; `hemodpd analyze` does the same from a trajectory.
 
 use crate::capillary::{
-    cell_fluid_field, cell_mesh_um, cell_params, check_membrane_timestep_for, describe_engine_error, membrane_model,
-    thermal_choice, validate_cell, validate_thermal, CellSection, ThermalSetting, INNER, MEMBRANE, OUTER, WALL,
+    cell_fluid_field, cell_membrane_viscosity, cell_mesh_um, cell_params, check_membrane_timestep_for,
+    describe_engine_error, membrane_model, thermal_choice, validate_cell, validate_thermal, CellSection,
+    ThermalSetting, INNER, MEMBRANE, OUTER, WALL,
 };
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
@@ -615,6 +616,7 @@ impl<'a> Plan<'a> {
             reflection: self.s.model.membrane_reflection,
             kbt: self.fluid.pair.kbt,
             seed: self.s.seed,
+            viscosity: cell_membrane_viscosity(&self.s.cell, &self.map),
         }
     }
 
@@ -633,7 +635,15 @@ fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
 fn build(plan: &Plan) -> Result<(ShearSim, Mesh, serde_json::Value), RunError> {
     let (rest, info) = plan.rest_mesh()?;
     let model = membrane_model(&plan.s.cell, &plan.map, &rest)?;
-    check_membrane_timestep_for(plan.dt, plan.fluid.pair.kbt, plan.map.thermal_factor, &model, &rest)?;
+    let visc = cell_membrane_viscosity(&plan.s.cell, &plan.map);
+    check_membrane_timestep_for(
+        plan.dt,
+        plan.fluid.pair.kbt,
+        plan.map.thermal_factor,
+        visc.as_ref(),
+        &model,
+        &rest,
+    )?;
     let config = plan.config();
     let base = match plan.plates {
         Some(shape) => {

@@ -178,6 +178,9 @@ pub struct PhysicalSystem {
     pub shear_modulus_n_per_m: f64,
     /// Bending constant κ (k_bend), J.
     pub bending_j: f64,
+    /// 2D membrane viscosity η_m, N·s/m = Pa·s·m (0: none, the paper's model; ≈ 5e-7–1e-6
+    /// physiologically).
+    pub membrane_viscosity_n_s_per_m: f64,
 }
 
 /// Mean velocity of Poiseuille flow in a tube of diameter `d_m` under the pressure gradient
@@ -218,6 +221,7 @@ impl PhysicalSystem {
             cell_volume_m3: volume_um3 * 1e-18,
             shear_modulus_n_per_m: membrane.shear_modulus_n_per_m,
             bending_j: membrane.k_bend_j,
+            membrane_viscosity_n_s_per_m: 0.0,
         }
     }
 
@@ -245,7 +249,15 @@ impl PhysicalSystem {
         positive("cell_area_m2", self.cell_area_m2)?;
         positive("cell_volume_m3", self.cell_volume_m3)?;
         positive("shear_modulus_n_per_m", self.shear_modulus_n_per_m)?;
-        positive("bending_j", self.bending_j)
+        positive("bending_j", self.bending_j)?;
+        if !(self.membrane_viscosity_n_s_per_m.is_finite() && self.membrane_viscosity_n_s_per_m >= 0.0) {
+            return Err(UnitsError::OutOfRange {
+                key: "membrane_viscosity_n_s_per_m",
+                value: self.membrane_viscosity_n_s_per_m,
+                allowed: "must be finite and ≥ 0".into(),
+            });
+        }
+        Ok(())
     }
 }
 
@@ -419,6 +431,10 @@ impl UnitMapping {
     pub fn modulus_unit_n_per_m(&self) -> f64 {
         self.energy_j / (self.length_m * self.length_m)
     }
+    /// One model 2D (membrane) viscosity unit E τ/r², N·s/m = Pa·s·m.
+    pub fn membrane_viscosity_unit_n_s_per_m(&self) -> f64 {
+        self.energy_j * self.time_s / (self.length_m * self.length_m)
+    }
 
     /// m/s → model velocity.
     pub fn velocity_to_model(&self, v_m_s: f64) -> f64 {
@@ -467,6 +483,10 @@ impl UnitMapping {
     /// Pa·s → model viscosity.
     pub fn viscosity_to_model(&self, eta_pa_s: f64) -> f64 {
         eta_pa_s / self.viscosity_unit_pa_s()
+    }
+    /// N·s/m (2D membrane viscosity) → model.
+    pub fn membrane_viscosity_to_model(&self, eta_n_s_per_m: f64) -> f64 {
+        eta_n_s_per_m / self.membrane_viscosity_unit_n_s_per_m()
     }
 }
 
@@ -547,6 +567,8 @@ pub struct ModelValues {
     pub cell_volume: f64,
     pub shear_modulus: f64,
     pub bending: f64,
+    /// 2D membrane viscosity η_m (0: none).
+    pub membrane_viscosity: f64,
     pub velocity: f64,
     /// Outer viscosity: the fluid's measured η_M.
     pub viscosity: f64,
@@ -577,6 +599,7 @@ pub fn model_values(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -
         cell_volume: sys.cell_volume_m3 / m.length_m.powi(3),
         shear_modulus: m.modulus_to_model(sys.shear_modulus_n_per_m),
         bending: m.energy_to_model(sys.bending_j),
+        membrane_viscosity: m.membrane_viscosity_to_model(sys.membrane_viscosity_n_s_per_m),
         velocity: u,
         viscosity: fluid.viscosity,
         inner_viscosity: sys.viscosity_ratio * fluid.viscosity,
@@ -657,6 +680,11 @@ pub fn explain(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> Str
     row(&mut s, "modulus E/r²", format!("{:.4e} N/m", m.modulus_unit_n_per_m()));
     row(
         &mut s,
+        "2D viscosity E τ/r²",
+        format!("{:.4e} N·s/m", m.membrane_viscosity_unit_n_s_per_m()),
+    );
+    row(
+        &mut s,
         "time step",
         format!(
             "Δt = {} model = {:.4e} s ({:.0} steps per ms)",
@@ -706,6 +734,31 @@ pub fn explain(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> Str
         v.shear_modulus,
     );
     pair(&mut s, "bending κ", format!("{:.4e} J", sys.bending_j), v.bending);
+    if sys.membrane_viscosity_n_s_per_m > 0.0 {
+        pair(
+            &mut s,
+            "membrane viscosity η_m",
+            format!("{:.4e} N·s/m", sys.membrane_viscosity_n_s_per_m),
+            v.membrane_viscosity,
+        );
+        let visc = hemodpd_membrane::viscosity::MembraneViscosity::from_eta(v.membrane_viscosity);
+        pair(
+            &mut s,
+            "  η_m/μ0 (Kelvin–Voigt)",
+            format!(
+                "{:.4} ms",
+                sys.membrane_viscosity_n_s_per_m / sys.shear_modulus_n_per_m * 1e3
+            ),
+            v.membrane_viscosity / v.shear_modulus,
+        );
+        let _ = writeln!(
+            s,
+            "    {:<24} γ_T = {:.4}, γ_C = γ_T/3 = {:.4} (model; Shardlow sweep, exact per link)",
+            "  link friction", visc.gamma_t, visc.gamma_c
+        );
+    } else {
+        let _ = writeln!(s, "    {:<24} 0 (off: the paper's model)", "membrane viscosity η_m");
+    }
     pair(
         &mut s,
         "kBT (membrane, T)",
