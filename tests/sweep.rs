@@ -152,6 +152,49 @@ fn parallel_sweep_equals_serial_sweep() {
     );
 }
 
+/// A tiny shear grid (two shear stresses, N = 100 in a 10 µm box, 0.5 strain units: seconds):
+/// the table has the shear columns, one row per point, each with the stress it was given.
+#[test]
+fn tiny_shear_sweep_tabulates_the_motion() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("shear");
+    let scen = scenario("shear-sweep.toml");
+    let o = hemodpd(&[
+        "sweep",
+        &scen,
+        "--jobs",
+        "2",
+        "--quiet",
+        "--out",
+        out.to_str().unwrap(),
+        "--set",
+        "cell.vertices=100",
+        "--set",
+        "shear.box_um=[10.0, 10.0, 10.0]",
+        "--set",
+        "shear.duration_strain=0.5",
+        "--set",
+        "shear.analysis_start_strain=0.1",
+        "--set",
+        "output.frame_every_strain=0",
+        "--vary",
+        "shear.shear_stress_pa=0.1,0.5",
+    ]);
+    assert!(o.status.success(), "{}", text(&o));
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    assert!(stdout.contains("TTF/rate") && stdout.contains("class"), "{stdout}");
+    let t = read_json(&out.join("sweep.json"));
+    let runs = t["runs"].as_array().unwrap();
+    assert_eq!(runs.len(), 2);
+    for (r, stress) in runs.iter().zip([0.1, 0.5]) {
+        assert_eq!(r["status"], "done", "{r}");
+        let got = r["metrics"]["stress (Pa)"].as_f64().unwrap();
+        assert!((got / stress - 1.0).abs() < 1e-12, "{r}");
+        // too short to classify: said so, not guessed
+        assert_eq!(r["metrics"]["class"], "Undetermined", "{r}");
+    }
+}
+
 /// A dpd-fluid grid of three seeds whose points take a few seconds each, with a checkpoint
 /// every 1000 steps.
 fn fluid_sweep(out: &Path, jobs: &str) -> Command {
