@@ -1,7 +1,8 @@
 //! The stepper: Groot–Warren modified velocity-Verlet with extension hooks.
 //!
 //! One step (n → n + 1), with λ from [`SimConfig::lambda`]:
-//! 1. v ← v + ½Δt f/m; x ← x + Δt v (mobile types only); wrap into the box; stability check.
+//! 1. v ← v + ½Δt f/m; x ← x + Δt v (mobile types only: not frozen, not
+//!    [`crate::TypeSpec::integrated_by_extension`]); wrap into the box; stability check.
 //! 2. [`Extension::after_position_update`] (bounce-back goes here).
 //! 3. Predicted velocity ṽ = v + (λ − ½)Δt f/m (= v_old + λΔt f/m); pair forces f(x, ṽ) with the
 //!    noise of force evaluation n + 1; + body forces; [`Extension::add_forces`].
@@ -145,6 +146,7 @@ pub struct Simulation<E: Extension = ()> {
     table: DpdTable,
     sforce: Vec<DVec3>,
     inv_mass: Vec<Real>,
+    /// Per type: left alone by the integrator (frozen, or integrated by an extension).
     frozen: Vec<bool>,
     body: Vec<DVec3>,
     any_body: bool,
@@ -213,9 +215,9 @@ impl<E: Extension> Simulation<E> {
         Ok(Self {
             table: DpdTable::new(&field, config.dt),
             inv_mass: types.iter().map(|t| 1.0 / t.mass).collect(),
-            frozen: types.iter().map(|t| t.frozen).collect(),
+            frozen: types.iter().map(|t| t.held()).collect(),
             body: types.iter().map(|t| t.body_force).collect(),
-            any_body: types.iter().any(|t| t.body_force != DVec3::ZERO && !t.frozen),
+            any_body: types.iter().any(|t| t.body_force != DVec3::ZERO && !t.held()),
             cells: CellList::new(grid),
             sforce: Vec::new(),
             config,
@@ -303,7 +305,7 @@ impl<E: Extension> Simulation<E> {
             .field
             .types()
             .iter()
-            .any(|t| t.body_force != DVec3::ZERO && !t.frozen);
+            .any(|t| t.body_force != DVec3::ZERO && !t.held());
         Ok(())
     }
 
