@@ -175,10 +175,9 @@ pub struct TypeSpec {
     /// Constant external force on every particle of this type (force units). Default 0.
     pub body_force: DVec3,
     /// Integrated by an extension, not by the engine (membrane vertices sub-stepped by their
-    /// cell, `hemodpd_membrane::coupling`): the engine neither kicks nor drifts nor wraps them
-    /// and adds no body force, and their velocity is their predicted velocity in the pair
-    /// forces; their pair forces are still computed into the force array for the extension to
-    /// apply. Unlike frozen particles they interact with every type (frozen ones included), and
+    /// cell, `hemodpd_membrane::coupling`): the engine neither kicks nor drifts nor wraps them,
+    /// and their velocity is their predicted velocity in the pair forces; their pair forces and
+    /// body force are still computed into the force array, for the extension to apply. Unlike frozen particles they interact with every type (frozen ones included), and
     /// walls neither move nor reflect them. Default false (absent in old checkpoints).
     #[serde(default)]
     pub integrated_by_extension: bool,

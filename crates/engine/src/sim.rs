@@ -147,6 +147,8 @@ pub struct Simulation<E: Extension = ()> {
     sforce: Vec<DVec3>,
     inv_mass: Vec<Real>,
     /// Per type: left alone by the integrator (frozen, or integrated by an extension).
+    held: Vec<bool>,
+    /// Per type: frozen (no body force).
     frozen: Vec<bool>,
     body: Vec<DVec3>,
     any_body: bool,
@@ -215,9 +217,10 @@ impl<E: Extension> Simulation<E> {
         Ok(Self {
             table: DpdTable::new(&field, config.dt),
             inv_mass: types.iter().map(|t| 1.0 / t.mass).collect(),
-            frozen: types.iter().map(|t| t.held()).collect(),
+            held: types.iter().map(|t| t.held()).collect(),
+            frozen: types.iter().map(|t| t.frozen).collect(),
             body: types.iter().map(|t| t.body_force).collect(),
-            any_body: types.iter().any(|t| t.body_force != DVec3::ZERO && !t.held()),
+            any_body: types.iter().any(|t| t.body_force != DVec3::ZERO && !t.frozen),
             cells: CellList::new(grid),
             sforce: Vec::new(),
             config,
@@ -305,7 +308,7 @@ impl<E: Extension> Simulation<E> {
             .field
             .types()
             .iter()
-            .any(|t| t.body_force != DVec3::ZERO && !t.held());
+            .any(|t| t.body_force != DVec3::ZERO && !t.frozen);
         Ok(())
     }
 
@@ -359,10 +362,10 @@ impl<E: Extension> Simulation<E> {
     /// `key_step`), plus body forces and the extension's forces.
     fn forces_at(&mut self, key_step: u64, c: Real, virial: bool) -> Result<DMat3, EngineError> {
         let p = &self.particles;
-        let (inv_mass, frozen) = (&self.inv_mass, &self.frozen);
+        let (inv_mass, held) = (&self.inv_mass, &self.held);
         let vel_of = |i: usize| {
             let t = p.ptype[i] as usize;
-            if frozen[t] || c == 0.0 {
+            if held[t] || c == 0.0 {
                 p.vel[i]
             } else {
                 p.vel[i] + p.force[i] * (c * inv_mass[t])
@@ -427,7 +430,7 @@ impl<E: Extension> Simulation<E> {
         // velocity of its new image (v_x ∓ U) at once, before any force sees it.
         self.domain = self.domain.at_time((step + 1) as Real * dt);
         {
-            let (inv_mass, frozen, domain) = (&self.inv_mass, &self.frozen, &self.domain);
+            let (inv_mass, held, domain) = (&self.inv_mass, &self.held, &self.domain);
             let u = domain.shear_velocity();
             let p = &mut self.particles;
             let bad = p
@@ -440,7 +443,7 @@ impl<E: Extension> Simulation<E> {
                 .with_min_len(MIN_LEN)
                 .filter_map(|(i, (((x, v), f), &t))| {
                     let t = t as usize;
-                    if frozen[t] {
+                    if held[t] {
                         return None;
                     }
                     *v += *f * (h * inv_mass[t]);
@@ -477,7 +480,7 @@ impl<E: Extension> Simulation<E> {
 
         // 4. second half kick + finiteness check
         {
-            let (inv_mass, frozen) = (&self.inv_mass, &self.frozen);
+            let (inv_mass, held) = (&self.inv_mass, &self.held);
             let p = &mut self.particles;
             let bad = p
                 .vel
@@ -488,7 +491,7 @@ impl<E: Extension> Simulation<E> {
                 .with_min_len(MIN_LEN)
                 .filter_map(|(i, ((v, f), &t))| {
                     let t = t as usize;
-                    if !frozen[t] {
+                    if !held[t] {
                         *v += *f * (h * inv_mass[t]);
                     }
                     if v.is_finite() && f.is_finite() {

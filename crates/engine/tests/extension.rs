@@ -95,24 +95,29 @@ fn frozen_types_and_body_force() {
 /// the engine would) and records the largest pair force they felt from the frozen type.
 struct OwnIntegrator {
     ptype: u16,
+    /// Largest pair force (the force less the body force).
     max_force: f64,
+    /// Whether every force was exactly the body force.
+    body_only: bool,
 }
 
 impl Extension for OwnIntegrator {
     fn after_position_update(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        let body = s.field.types()[self.ptype as usize].body_force;
         for i in 0..s.pos.len() {
             if s.ptype[i] == self.ptype {
-                self.max_force = self.max_force.max(s.force[i].length());
+                self.max_force = self.max_force.max((s.force[i] - body).length());
+                self.body_only &= s.force[i] == body;
             }
         }
         Ok(())
     }
 }
 
-/// A type integrated by an extension: the engine neither moves nor kicks it and gives it no
-/// body force (its positions and velocities are unchanged bit for bit, the extension above does
-/// not move them), but it still feels pair forces, from the frozen type too (frozen–frozen pairs
-/// are skipped; this type is not frozen).
+/// A type integrated by an extension: the engine neither moves nor kicks it (its positions and
+/// velocities are unchanged bit for bit, the extension above does not move them), but its force
+/// holds its body force and its pair forces, from the frozen type too (frozen–frozen pairs are
+/// skipped; this type is not frozen).
 #[test]
 fn types_integrated_by_an_extension_are_left_to_it() {
     let config = SimConfig::new(DVec3::splat(5.0), 0.01, 3);
@@ -155,12 +160,24 @@ fn types_integrated_by_an_extension_are_left_to_it() {
     let ext = OwnIntegrator {
         ptype: 2,
         max_force: 0.0,
+        body_only: true,
     };
-    let mut sim = Simulation::with_extension(config, field, p, ext).unwrap();
+    let mut sim = Simulation::with_extension(config.clone(), field.clone(), p.clone(), ext).unwrap();
     sim.run(20).unwrap();
     let q = sim.particles();
     let after: Vec<(DVec3, DVec3)> = held.iter().map(|&i| (q.pos[i], q.vel[i])).collect();
     assert_eq!(before, after);
     // a = 25 at a typical wall neighbour distance of 0.5 rc gives forces of order 10
     assert!(sim.extension().max_force > 1.0, "{}", sim.extension().max_force);
+    assert!(!sim.extension().body_only);
+    // without the wall pair, the force is the body force exactly
+    field.set_pair(1, 2, none).unwrap();
+    let ext = OwnIntegrator {
+        ptype: 2,
+        max_force: 0.0,
+        body_only: true,
+    };
+    let mut sim = Simulation::with_extension(config, field, p, ext).unwrap();
+    sim.run(5).unwrap();
+    assert!(sim.extension().body_only);
 }
