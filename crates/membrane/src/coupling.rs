@@ -221,6 +221,7 @@ pub struct CellTimers {
     /// The membrane forces and, with sub-steps, the rest of the inner steps but the sweeps.
     pub membrane_forces_s: f64,
     pub checks_s: f64,
+    /// The viscosity sweeps and, with sub-steps and a viscosity, the inner kicks and drifts.
     pub viscosity_s: f64,
 }
 
