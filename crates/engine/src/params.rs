@@ -174,6 +174,13 @@ pub struct TypeSpec {
     pub frozen: bool,
     /// Constant external force on every particle of this type (force units). Default 0.
     pub body_force: DVec3,
+    /// Integrated by an extension, not by the engine (membrane vertices sub-stepped by their
+    /// cell, `hemodpd_membrane::coupling`): the engine neither kicks nor drifts nor wraps them,
+    /// and their velocity is their predicted velocity in the pair forces; their pair forces and
+    /// body force are still computed into the force array, for the extension to apply. Unlike frozen particles they interact with every type (frozen ones included), and
+    /// walls neither move nor reflect them. Default false (absent in old checkpoints).
+    #[serde(default)]
+    pub integrated_by_extension: bool,
 }
 
 impl TypeSpec {
@@ -184,6 +191,7 @@ impl TypeSpec {
             mass: 1.0,
             frozen: false,
             body_force: DVec3::ZERO,
+            integrated_by_extension: false,
         }
     }
 
@@ -193,6 +201,12 @@ impl TypeSpec {
             frozen: true,
             ..Self::new(name)
         }
+    }
+
+    /// Whether the engine's integrator leaves this type alone (frozen, or integrated by an
+    /// extension).
+    pub fn held(&self) -> bool {
+        self.frozen || self.integrated_by_extension
     }
 }
 

@@ -1,7 +1,8 @@
 //! The stepper: Groot–Warren modified velocity-Verlet with extension hooks.
 //!
 //! One step (n → n + 1), with λ from [`SimConfig::lambda`]:
-//! 1. v ← v + ½Δt f/m; x ← x + Δt v (mobile types only); wrap into the box; stability check.
+//! 1. v ← v + ½Δt f/m; x ← x + Δt v (mobile types only: not frozen, not
+//!    [`crate::TypeSpec::integrated_by_extension`]); wrap into the box; stability check.
 //! 2. [`Extension::after_position_update`] (bounce-back goes here).
 //! 3. Predicted velocity ṽ = v + (λ − ½)Δt f/m (= v_old + λΔt f/m); pair forces f(x, ṽ) with the
 //!    noise of force evaluation n + 1; + body forces; [`Extension::add_forces`].
@@ -145,6 +146,9 @@ pub struct Simulation<E: Extension = ()> {
     table: DpdTable,
     sforce: Vec<DVec3>,
     inv_mass: Vec<Real>,
+    /// Per type: left alone by the integrator (frozen, or integrated by an extension).
+    held: Vec<bool>,
+    /// Per type: frozen (no body force).
     frozen: Vec<bool>,
     body: Vec<DVec3>,
     any_body: bool,
@@ -213,6 +217,7 @@ impl<E: Extension> Simulation<E> {
         Ok(Self {
             table: DpdTable::new(&field, config.dt),
             inv_mass: types.iter().map(|t| 1.0 / t.mass).collect(),
+            held: types.iter().map(|t| t.held()).collect(),
             frozen: types.iter().map(|t| t.frozen).collect(),
             body: types.iter().map(|t| t.body_force).collect(),
             any_body: types.iter().any(|t| t.body_force != DVec3::ZERO && !t.frozen),
@@ -357,10 +362,10 @@ impl<E: Extension> Simulation<E> {
     /// `key_step`), plus body forces and the extension's forces.
     fn forces_at(&mut self, key_step: u64, c: Real, virial: bool) -> Result<DMat3, EngineError> {
         let p = &self.particles;
-        let (inv_mass, frozen) = (&self.inv_mass, &self.frozen);
+        let (inv_mass, held) = (&self.inv_mass, &self.held);
         let vel_of = |i: usize| {
             let t = p.ptype[i] as usize;
-            if frozen[t] || c == 0.0 {
+            if held[t] || c == 0.0 {
                 p.vel[i]
             } else {
                 p.vel[i] + p.force[i] * (c * inv_mass[t])
@@ -425,7 +430,7 @@ impl<E: Extension> Simulation<E> {
         // velocity of its new image (v_x ∓ U) at once, before any force sees it.
         self.domain = self.domain.at_time((step + 1) as Real * dt);
         {
-            let (inv_mass, frozen, domain) = (&self.inv_mass, &self.frozen, &self.domain);
+            let (inv_mass, held, domain) = (&self.inv_mass, &self.held, &self.domain);
             let u = domain.shear_velocity();
             let p = &mut self.particles;
             let bad = p
@@ -438,7 +443,7 @@ impl<E: Extension> Simulation<E> {
                 .with_min_len(MIN_LEN)
                 .filter_map(|(i, (((x, v), f), &t))| {
                     let t = t as usize;
-                    if frozen[t] {
+                    if held[t] {
                         return None;
                     }
                     *v += *f * (h * inv_mass[t]);
@@ -475,7 +480,7 @@ impl<E: Extension> Simulation<E> {
 
         // 4. second half kick + finiteness check
         {
-            let (inv_mass, frozen) = (&self.inv_mass, &self.frozen);
+            let (inv_mass, held) = (&self.inv_mass, &self.held);
             let p = &mut self.particles;
             let bad = p
                 .vel
@@ -486,7 +491,7 @@ impl<E: Extension> Simulation<E> {
                 .with_min_len(MIN_LEN)
                 .filter_map(|(i, ((v, f), &t))| {
                     let t = t as usize;
-                    if !frozen[t] {
+                    if !held[t] {
                         *v += *f * (h * inv_mass[t]);
                     }
                     if v.is_finite() && f.is_finite() {

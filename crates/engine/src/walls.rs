@@ -920,6 +920,10 @@ impl Extension for Walls {
         let shape = self.shape;
         let refl = self.config.reflection;
         let frozen: Vec<bool> = s.field.types().iter().map(|t| t.frozen).collect();
+        // types integrated by another extension (sub-stepped membrane vertices) are not moved
+        // by the integrator's drift, so there is no drift segment to reflect: their extension
+        // keeps them out of the wall
+        let held: Vec<bool> = s.field.types().iter().map(|t| t.held()).collect();
         let mass: Vec<Real> = s.field.types().iter().map(|t| t.mass).collect();
         let domain = *s.domain;
         let dt = s.dt;
@@ -946,7 +950,7 @@ impl Extension for Walls {
             .enumerate()
             .with_min_len(4096)
             .filter_map(|(i, ((x, v), &t))| {
-                if frozen[t as usize] {
+                if held[t as usize] {
                     return None;
                 }
                 let d = shape.signed_distance(*x);

@@ -90,3 +90,94 @@ fn frozen_types_and_body_force() {
     let expect = n * 0.1 * 100.0 * 0.01;
     assert!((px - expect).abs() < 1e-9 * expect, "{px} vs {expect}");
 }
+
+/// Moves the particles of one type itself (a rigid translation, kicked by their pair forces as
+/// the engine would) and records the largest pair force they felt from the frozen type.
+struct OwnIntegrator {
+    ptype: u16,
+    /// Largest pair force (the force less the body force).
+    max_force: f64,
+    /// Whether every force was exactly the body force.
+    body_only: bool,
+}
+
+impl Extension for OwnIntegrator {
+    fn after_position_update(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        let body = s.field.types()[self.ptype as usize].body_force;
+        for i in 0..s.pos.len() {
+            if s.ptype[i] == self.ptype {
+                self.max_force = self.max_force.max((s.force[i] - body).length());
+                self.body_only &= s.force[i] == body;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// A type integrated by an extension: the engine neither moves nor kicks it (its positions and
+/// velocities are unchanged bit for bit, the extension above does not move them), but its force
+/// holds its body force and its pair forces, from the frozen type too (frozen–frozen pairs are
+/// skipped; this type is not frozen).
+#[test]
+fn types_integrated_by_an_extension_are_left_to_it() {
+    let config = SimConfig::new(DVec3::splat(5.0), 0.01, 3);
+    let mut field = ForceField::new(
+        vec![
+            TypeSpec::new("solvent"),
+            TypeSpec::frozen("wall"),
+            TypeSpec {
+                integrated_by_extension: true,
+                ..TypeSpec::new("held")
+            },
+        ],
+        PairParams::groot_warren(),
+    )
+    .unwrap();
+    // only the wall acts on the held type: a large pair force would show if the pair were skipped
+    let none = PairParams {
+        a: 0.0,
+        gamma: 0.0,
+        kbt: 0.0,
+        ..PairParams::groot_warren()
+    };
+    field.set_pair(0, 2, none).unwrap();
+    field.set_pair(2, 2, none).unwrap();
+    field.set_body_force(2, DVec3::new(5.0, 0.0, 0.0)).unwrap();
+    let mut p = init::fluid(&config, &field, &init::FluidSpec::standard(), 2).unwrap();
+    let n = p.len();
+    for i in 0..n {
+        match i % 10 {
+            0 => {
+                p.ptype[i] = 1;
+                p.vel[i] = DVec3::ZERO;
+            }
+            1 => p.ptype[i] = 2,
+            _ => {}
+        }
+    }
+    let held: Vec<usize> = (0..n).filter(|i| i % 10 == 1).collect();
+    let before: Vec<(DVec3, DVec3)> = held.iter().map(|&i| (p.pos[i], p.vel[i])).collect();
+    let ext = OwnIntegrator {
+        ptype: 2,
+        max_force: 0.0,
+        body_only: true,
+    };
+    let mut sim = Simulation::with_extension(config.clone(), field.clone(), p.clone(), ext).unwrap();
+    sim.run(20).unwrap();
+    let q = sim.particles();
+    let after: Vec<(DVec3, DVec3)> = held.iter().map(|&i| (q.pos[i], q.vel[i])).collect();
+    assert_eq!(before, after);
+    // a = 25 at a typical wall neighbour distance of 0.5 rc gives forces of order 10
+    assert!(sim.extension().max_force > 1.0, "{}", sim.extension().max_force);
+    assert!(!sim.extension().body_only);
+    // without the wall pair, the force is the body force exactly
+    field.set_pair(1, 2, none).unwrap();
+    let ext = OwnIntegrator {
+        ptype: 2,
+        max_force: 0.0,
+        body_only: true,
+    };
+    let mut sim = Simulation::with_extension(config, field, p, ext).unwrap();
+    sim.run(5).unwrap();
+    assert!(sim.extension().body_only);
+}

@@ -20,6 +20,25 @@
 //!    winding number) of every inner and outer fluid particle near the cell; a particle on the
 //!    wrong side is a missed crossing, counted in [`CellStats::misplaced`].
 //!
+//! **Sub-stepping** ([`CellConfig::substeps`] = k > 1, docs/model.md §7b): the cell integrates
+//! its vertices itself by a two-level r-RESPA scheme ([`crate::respa`]), and their particle type
+//! must be [`TypeSpec::integrated_by_extension`](hemodpd_engine::TypeSpec) (the engine then
+//! only computes their pair forces). The slow force is what the engine leaves in `state.force`
+//! of a vertex (the pair forces from the fluid and walls, any wall force, the external forces);
+//! the fast ones are the membrane forces, the wall repulsion and the membrane viscosity:
+//! 1. [`Extension::after_position_update`]: v += ½Δt F_slow(t)/m; k inner steps of h = Δt/k
+//!    (velocity Verlet with the fast forces on the unwrapped positions, then the Shardlow
+//!    sweep with step h); the new positions wrapped into `state.pos` (Lees–Edwards: the velocity
+//!    follows the image); then the bounce pass over the step as above;
+//! 2. [`Extension::add_forces`]: only the external forces are added (the membrane forces are
+//!    inner forces; the last inner evaluation's forces and energy are kept);
+//! 3. [`Extension::end_of_step`]: v += ½Δt F_slow(t + Δt)/m; the checks.
+//!
+//! Each pair force reaches both partners as the same two half-kicks, and the fast forces and
+//! the sweep conserve momentum, so the total momentum of fluid and cell is conserved to
+//! round-off as with k = 1. The fast forces at the end of a step are kept for the next step's
+//! first inner half-kick and checkpointed ([`CellState::fast_forces`]).
+//!
 //! Candidate pairs for bounce-back: a particle can only have crossed a triangle if its segment
 //! of the step meets the bounding box of the cell over the step; those few particles (a parallel
 //! filter with one box test each) are tested against the triangles of a uniform grid over that
@@ -36,8 +55,9 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
-use crate::forces::ForceWorkspace;
+use crate::forces::{ForceError, ForceWorkspace};
 use crate::mesh::winding_number;
+use crate::respa::{inner_steps, InnerSweep};
 use crate::viscosity::{shardlow_sweep, MembraneViscosity};
 use crate::MembraneModel;
 
@@ -148,9 +168,21 @@ pub struct CellConfig {
     /// Seed of the Maxwell reflections' and the membrane viscosity's random numbers.
     pub seed: u64,
     /// Membrane viscosity (Fedosov's dissipative and random link forces at the fluid's `kbt`),
-    /// or `None`: the paper's model, no work done. Applied at the end of every step.
+    /// or `None`: the paper's model, no work done. Applied at the end of every step (k = 1) or
+    /// after every inner step (k > 1).
     #[serde(default)]
     pub viscosity: Option<MembraneViscosity>,
+    /// Membrane sub-steps k ≥ 1 per fluid step (default 1). 1: the engine integrates the
+    /// vertices with the membrane forces added to their pair forces, and the viscosity sweep
+    /// runs once per step. k > 1: the cell integrates them by r-RESPA with k inner steps of
+    /// Δt/k (module docs), and the vertex type must be integrated by the extension
+    /// ([`hemodpd_engine::TypeSpec::integrated_by_extension`]); with k = 1 it must not be.
+    #[serde(default = "one_substep")]
+    pub substeps: u32,
+}
+
+fn one_substep() -> u32 {
+    1
 }
 
 /// Counters of a [`Cell`] (part of its checkpointed state).
@@ -175,14 +207,21 @@ pub struct CellState {
     /// Unwrapped vertex positions, `[x, y, z]` (length).
     pub unwrapped: Vec<[f64; 3]>,
     pub stats: CellStats,
+    /// With sub-steps (k > 1): the fast forces (membrane + wall repulsion, force) at
+    /// `unwrapped`, for the first inner half-kick of the next step. Empty with k = 1 and in
+    /// checkpoints written before sub-stepping existed (then recomputed from the positions).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub fast_forces: Vec<[f64; 3]>,
 }
 
 /// Wall-clock seconds spent in each part of the cell's work (not checkpointed).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct CellTimers {
     pub bounce_s: f64,
+    /// The membrane forces and, with sub-steps, the rest of the inner steps but the sweeps.
     pub membrane_forces_s: f64,
     pub checks_s: f64,
+    /// The viscosity sweeps and, with sub-steps and a viscosity, the inner kicks and drifts.
     pub viscosity_s: f64,
 }
 
@@ -224,6 +263,13 @@ pub struct Cell {
     vertex_masses: Vec<f64>,
     /// Constant external forces on vertices (vertex index, force), e.g. optical tweezers.
     external: Vec<(u32, DVec3)>,
+    /// Sub-steps: whether `forces` holds the fast forces at `x` (false until the first
+    /// evaluation, or after a restore from a checkpoint without them).
+    fast_ready: bool,
+    /// Whether the vertex type was checked against `substeps` (at the first hook).
+    types_checked: bool,
+    /// Sub-steps: the vertex velocities in the frame of the unwrapped positions.
+    vel_buf: Vec<DVec3>,
 }
 
 /// Bounding box of a set of points.
@@ -286,6 +332,30 @@ impl Grid {
     }
 }
 
+/// The fast forces of the sub-stepped scheme at the unwrapped positions `x`, written into `f`:
+/// the membrane forces of `model` (in parallel with `ws`, when given) plus the wall repulsion at
+/// the positions wrapped into `domain`. Returns the membrane's energy terms.
+fn fast_forces(
+    model: &MembraneModel,
+    ws: Option<&mut ForceWorkspace>,
+    wall: Option<&WallRepulsion>,
+    domain: &hemodpd_engine::PeriodicBox,
+    x: &[DVec3],
+    f: &mut [DVec3],
+) -> Result<crate::EnergyTerms, ForceError> {
+    f.iter_mut().for_each(|fk| *fk = DVec3::ZERO);
+    let energy = match ws {
+        Some(ws) => model.add_forces_parallel(x, f, ws)?,
+        None => model.add_forces(x, f)?,
+    };
+    if let Some(w) = wall {
+        for (fk, xk) in f.iter_mut().zip(x) {
+            *fk += w.force(domain.wrap(*xk));
+        }
+    }
+    Ok(energy)
+}
+
 impl Cell {
     /// A cell with the given model (in model units) whose vertices are at the unwrapped
     /// positions `unwrapped` (the particles at `config.first..` must hold the same positions,
@@ -323,6 +393,12 @@ impl Cell {
                 ));
             }
         }
+        if config.substeps == 0 {
+            return Err(EngineError::invalid(
+                "cell membrane substeps",
+                "0 (need k ≥ 1; 1: no sub-stepping)",
+            ));
+        }
         let n = unwrapped.len();
         let workspace = (n >= PARALLEL_FORCES_FROM).then(|| model.workspace());
         Ok(Cell {
@@ -343,6 +419,9 @@ impl Cell {
             masses: Vec::new(),
             vertex_masses: Vec::new(),
             external: Vec::new(),
+            fast_ready: false,
+            types_checked: false,
+            vel_buf: Vec::new(),
         })
     }
 
@@ -354,9 +433,23 @@ impl Cell {
                 format!("{} vertices for a model of {}", state.unwrapped.len(), self.x.len()),
             ));
         }
+        if !state.fast_forces.is_empty() && state.fast_forces.len() != self.x.len() {
+            return Err(EngineError::invalid(
+                "saved cell state",
+                format!(
+                    "{} fast forces for a model of {} vertices",
+                    state.fast_forces.len(),
+                    self.x.len()
+                ),
+            ));
+        }
         self.x = state.unwrapped.iter().map(|v| DVec3::from_array(*v)).collect();
         self.x_prev = self.x.clone();
         self.stats = state.stats;
+        if self.config.substeps > 1 && !state.fast_forces.is_empty() {
+            self.forces = state.fast_forces.iter().map(|v| DVec3::from_array(*v)).collect();
+            self.fast_ready = true;
+        }
         Ok(self)
     }
 
@@ -365,6 +458,11 @@ impl Cell {
         CellState {
             unwrapped: self.x.iter().map(|v| v.to_array()).collect(),
             stats: self.stats.clone(),
+            fast_forces: if self.config.substeps > 1 && self.fast_ready {
+                self.forces.iter().map(|v| v.to_array()).collect()
+            } else {
+                Vec::new()
+            },
         }
     }
 
@@ -456,6 +554,166 @@ impl Cell {
             })
             .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
         (tested, wrong)
+    }
+
+    /// The engine error of a failed membrane force evaluation at `step`.
+    fn force_error(&self, e: ForceError, step: u64) -> EngineError {
+        EngineError::Extension {
+            step,
+            message: format!(
+                "membrane: {e} (membrane vertices, storage indices {}..{}); likely cause: a time step too large for the membrane's stiffness or a flow far beyond the scenario's stated bounds",
+                self.config.first,
+                self.config.first + self.x.len()
+            ),
+        }
+    }
+
+    /// Checks, once, that the vertices are in storage and that their type is integrated by this
+    /// extension exactly when sub-stepping (and is not frozen then).
+    fn check_types(&mut self, s: &StateMut<'_>) -> Result<(), EngineError> {
+        if self.types_checked {
+            return Ok(());
+        }
+        let range = self.vertex_range();
+        if range.end > s.ptype.len() {
+            return Err(EngineError::invalid(
+                "cell vertices",
+                format!(
+                    "storage indices {}..{} beyond the {} particles",
+                    range.start,
+                    range.end,
+                    s.ptype.len()
+                ),
+            ));
+        }
+        let k = self.config.substeps;
+        let want = k > 1;
+        let types = s.field.types();
+        if let Some(i) = range.clone().find(|&i| {
+            let t = &types[s.ptype[i] as usize];
+            t.integrated_by_extension != want || (want && t.frozen)
+        }) {
+            let t = &types[s.ptype[i] as usize];
+            let need = if want {
+                "integrated by the extension (TypeSpec::integrated_by_extension = true) and not frozen"
+            } else {
+                "integrated by the engine (TypeSpec::integrated_by_extension = false)"
+            };
+            return Err(EngineError::invalid(
+                "cell vertex type",
+                format!(
+                    "type {} \"{}\" of the vertex at storage index {i} has integrated_by_extension = {} and frozen = {}; with membrane substeps = {k} it must be {need}",
+                    s.ptype[i], t.name, t.integrated_by_extension, t.frozen
+                ),
+            ));
+        }
+        self.types_checked = true;
+        Ok(())
+    }
+
+    /// Reads the vertex masses from the force field (once).
+    fn load_vertex_masses(&mut self, s: &StateMut<'_>) {
+        if self.vertex_masses.len() != self.x.len() {
+            let types = s.field.types();
+            self.vertex_masses = s.ptype[self.vertex_range()]
+                .iter()
+                .map(|&t| types[t as usize].mass)
+                .collect();
+        }
+    }
+
+    /// Sub-stepping: the fast forces at the current unwrapped positions into `forces` (when they
+    /// are not there yet).
+    fn ensure_fast_forces(&mut self, s: &StateMut<'_>) -> Result<(), EngineError> {
+        if self.fast_ready {
+            return Ok(());
+        }
+        let t0 = Instant::now();
+        let r = fast_forces(
+            &self.model,
+            self.workspace.as_mut(),
+            self.config.wall.as_ref(),
+            s.domain,
+            &self.x,
+            &mut self.forces,
+        );
+        self.energy = r.map_err(|e| self.force_error(e, s.step))?;
+        self.fast_ready = true;
+        self.timers.membrane_forces_s += t0.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Sub-stepping, after the fluid's drift: the slow half-kick, the k inner steps, the new
+    /// positions written back wrapped (module docs). Leaves `x_prev`/`x` at the start and end of
+    /// the step for the bounce pass.
+    fn substep(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        self.load_vertex_masses(s);
+        self.ensure_fast_forces(s)?;
+        let t0 = Instant::now();
+        let range = self.vertex_range();
+        let k = self.config.substeps;
+        let (dt, h) = (s.dt, s.dt / k as f64);
+        let domain = *s.domain;
+        // Lees–Edwards: a vertex whose wrapped image is j periods below its unwrapped position
+        // moves, in the unwrapped frame, j U faster along x (U = 0: no change)
+        let (u, ly) = (domain.shear_velocity(), domain.lengths().y);
+        self.vel_buf.clear();
+        for (j, i) in range.clone().enumerate() {
+            s.vel[i] += s.force[i] * (0.5 * dt / self.vertex_masses[j]);
+            let mut v = s.vel[i];
+            if u != 0.0 {
+                v += DVec3::X * (u * ((self.x[j].y - s.pos[i].y) / ly).round());
+            }
+            self.vel_buf.push(v);
+        }
+        self.x_prev.copy_from_slice(&self.x);
+        let sweep = self.config.viscosity.as_ref().map(|visc| InnerSweep {
+            links: self.model.links(),
+            viscosity: visc,
+            kbt: self.config.kbt,
+            seed: self.config.seed,
+            first_key: s.step.wrapping_mul(k as u64),
+        });
+        let (model, wall) = (&self.model, self.config.wall.as_ref());
+        let (ws, energy) = (&mut self.workspace, &mut self.energy);
+        let mut force_s = 0.0;
+        let result = inner_steps(
+            &mut self.x,
+            &mut self.vel_buf,
+            &mut self.forces,
+            &self.vertex_masses,
+            k,
+            h,
+            sweep,
+            |x, f| {
+                let t = Instant::now();
+                let r = fast_forces(model, ws.as_mut(), wall, &domain, x, f);
+                force_s += t.elapsed().as_secs_f64();
+                *energy = r?;
+                Ok(())
+            },
+        );
+        if let Err(e) = result {
+            self.fast_ready = false;
+            return Err(self.force_error(e, s.step));
+        }
+        for (j, i) in range.enumerate() {
+            let (w, images) = domain.wrap_sheared(self.x[j]);
+            s.pos[i] = w;
+            s.vel[i] = if u != 0.0 {
+                self.vel_buf[j] - DVec3::X * (images as f64 * u)
+            } else {
+                self.vel_buf[j]
+            };
+        }
+        let total = t0.elapsed().as_secs_f64();
+        if self.config.viscosity.is_some() {
+            self.timers.membrane_forces_s += force_s;
+            self.timers.viscosity_s += total - force_s;
+        } else {
+            self.timers.membrane_forces_s += total;
+        }
+        Ok(())
     }
 
     /// Advances the unwrapped positions to the vertices' new wrapped positions. With
@@ -660,8 +918,14 @@ impl Cell {
 
 impl Extension for Cell {
     fn after_position_update(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        self.check_types(s)?;
+        if self.config.substeps > 1 {
+            self.substep(s)?;
+        }
         let t0 = Instant::now();
-        self.unwrap(s);
+        if self.config.substeps == 1 {
+            self.unwrap(s);
+        }
         let n = self.bounce(s)?;
         self.stats.bounces += n;
         self.timers.bounce_s += t0.elapsed().as_secs_f64();
@@ -669,20 +933,25 @@ impl Extension for Cell {
     }
 
     fn add_forces(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
+        self.check_types(s)?;
+        if self.config.substeps > 1 {
+            // the membrane forces and the wall repulsion are inner forces; only the external
+            // ones join the slow force (the first call, at the initial force evaluation,
+            // computes the fast forces for the first step)
+            self.ensure_fast_forces(s)?;
+            let first = self.config.first;
+            for &(k, f) in &self.external {
+                s.force[first + k as usize] += f;
+            }
+            return Ok(());
+        }
         let t0 = Instant::now();
         self.forces.iter_mut().for_each(|f| *f = DVec3::ZERO);
         let result = match self.workspace.as_mut() {
             Some(ws) => self.model.add_forces_parallel(&self.x, &mut self.forces, ws),
             None => self.model.add_forces(&self.x, &mut self.forces),
         };
-        self.energy = result.map_err(|e| EngineError::Extension {
-            step: s.step,
-            message: format!(
-                "membrane: {e} (membrane vertices, storage indices {}..{}); likely cause: a time step too large for the membrane's stiffness or a flow far beyond the scenario's stated bounds",
-                self.config.first,
-                self.config.first + self.x.len()
-            ),
-        })?;
+        self.energy = result.map_err(|e| self.force_error(e, s.step))?;
         let first = self.config.first;
         for (k, f) in self.forces.iter().enumerate() {
             s.force[first + k] += *f;
@@ -700,13 +969,17 @@ impl Extension for Cell {
     }
 
     fn end_of_step(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
-        if let Some(visc) = self.config.viscosity {
+        if self.config.substeps > 1 {
+            // the second slow half-kick, with the pair forces of the new positions
+            self.load_vertex_masses(s);
+            let h = 0.5 * s.dt;
+            for (j, i) in self.vertex_range().enumerate() {
+                s.vel[i] += s.force[i] * (h / self.vertex_masses[j]);
+            }
+        } else if let Some(visc) = self.config.viscosity {
             let t0 = Instant::now();
             let range = self.vertex_range();
-            if self.vertex_masses.len() != self.x.len() {
-                let types = s.field.types();
-                self.vertex_masses = s.ptype[range.clone()].iter().map(|&t| types[t as usize].mass).collect();
-            }
+            self.load_vertex_masses(s);
             // Lees–Edwards: a vertex whose wrapped image is k periods below its unwrapped
             // position moves, in the cell's frame, k U faster along x; the sweep works there
             let (u, ly) = (s.domain.shear_velocity(), s.domain.lengths().y);

@@ -8,6 +8,7 @@
 //! * [`stretch`]: the optical-tweezers stretching experiment at static equilibrium.
 //! * [`motion`]: tumbling, tank-treading, swinging or intermittent motion of a cell in shear flow.
 //! * [`viscosity`]: membrane viscosity (Fedosov's link friction and noise), a Shardlow sweep.
+//! * [`respa`]: membrane sub-stepping (the inner steps of an r-RESPA scheme) for a stiff viscosity.
 //!
 //! Units: this crate is unit-agnostic; callers pass numbers in one consistent system.
 //! The stretching driver uses µm, pN and pN·µm (so kBT = 4.142e-3 pN·µm at 300 K).
@@ -20,6 +21,7 @@ pub mod meshgen;
 pub mod meshio;
 pub mod motion;
 pub mod params;
+pub mod respa;
 pub mod shape;
 pub mod stretch;
 pub mod viscosity;

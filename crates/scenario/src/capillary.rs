@@ -98,6 +98,28 @@ impl std::fmt::Display for ThermalSetting {
         }
     }
 }
+/// `model.membrane_substeps`: an integer k (1–1000; 1, the default: no sub-stepping) or
+/// "auto" (the smallest k with (γ_T + γ_C)(Δt/k)/μ ≤ 1 when there is a membrane viscosity, else 1).
+#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
+#[serde(untagged)]
+pub enum SubstepSetting {
+    Count(i64),
+    Word(String),
+}
+
+impl std::fmt::Display for SubstepSetting {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            SubstepSetting::Count(k) => write!(f, "{k}"),
+            SubstepSetting::Word(w) => write!(f, "{w:?}"),
+        }
+    }
+}
+
+pub(crate) fn d_substeps() -> SubstepSetting {
+    SubstepSetting::Count(1)
+}
+
 fn d_mach() -> f64 {
     units::MACH_LIMIT
 }
@@ -206,6 +228,13 @@ pub struct ModelSection {
     /// creases trap particles, docs/capillary.md).
     #[serde(default)]
     pub membrane_reflection: MembraneReflection,
+    /// Membrane sub-steps k per fluid step: an integer 1–1000 (default 1: none, the membrane
+    /// integrated with the fluid) or "auto": the smallest k with (γ_T + γ_C)(Δt/k)/μ ≤ 1 when
+    /// `cell.membrane_viscosity_pa_s_m` > 0 (μ the reduced mass of a link, half a vertex mass),
+    /// else 1. One Shardlow sweep per Δt caps the link friction near 2μ/Δt, 25 × below a
+    /// physiological η_m at the default Δt; "auto" (50 there) lifts the cap (docs/model.md §7b).
+    #[serde(default = "d_substeps")]
+    pub membrane_substeps: SubstepSetting,
 }
 
 /// One `[[stage]]` of the protocol. A stage drives the flow with at most one of the three
@@ -473,6 +502,78 @@ pub(crate) fn validate_thermal(setting: &ThermalSetting, max_mach: f64, file: &s
 
 /// Validates the capillary section of a file: every value, the cell fitting the tube, the
 /// stages, and the unit mapping (Mach and Reynolds bounds), before any work.
+/// Largest `model.membrane_substeps`.
+pub(crate) const MAX_SUBSTEPS: i64 = 1000;
+
+/// Checks `model.membrane_substeps`.
+pub(crate) fn validate_substeps(k: &SubstepSetting, file: &str) -> Result<(), ScenarioError> {
+    let ok = match k {
+        SubstepSetting::Count(k) => (1..=MAX_SUBSTEPS).contains(k),
+        SubstepSetting::Word(w) => w == "auto",
+    };
+    if ok {
+        Ok(())
+    } else {
+        Err(ScenarioError::Value {
+            file: file.into(),
+            key: "model.membrane_substeps".into(),
+            value: k.to_string(),
+            allowed: format!(
+                "an integer 1–{MAX_SUBSTEPS} (1, the default: no sub-stepping) or \"auto\" (from the membrane viscosity)"
+            ),
+        })
+    }
+}
+
+/// The membrane sub-steps k of a run: the count when given, else ("auto") the smallest k with
+/// (γ_T + γ_C)(Δt/k)/μ ≤ 1 for a link of two vertices of mass `vertex_mass` (μ = m/2; at most
+/// [`MAX_SUBSTEPS`]), or 1 without a membrane viscosity. The setting is validated first.
+pub(crate) fn resolve_substeps(
+    setting: &SubstepSetting,
+    visc: Option<&MembraneViscosity>,
+    dt: f64,
+    vertex_mass: f64,
+) -> u32 {
+    match (setting, visc) {
+        (SubstepSetting::Count(k), _) => (*k).clamp(1, MAX_SUBSTEPS) as u32,
+        (SubstepSetting::Word(_), Some(v)) => {
+            let mu = 0.5 * vertex_mass;
+            let k = ((v.gamma_t + v.gamma_c) * dt / mu).ceil();
+            k.clamp(1.0, MAX_SUBSTEPS as f64) as u32
+        }
+        (SubstepSetting::Word(_), None) => 1,
+    }
+}
+
+/// The `membrane_viscosity` block of a cell run's summary: η_m in SI and model units, the
+/// friction coefficients, the sub-steps, and the effective link friction of the scheme
+/// γ_eff = μ/(h(a/(1 − a) + ½)), a = exp(−(γ_T + γ_C)h/μ), h = Δt/k, as a fraction of γ_T + γ_C.
+pub(crate) fn membrane_viscosity_summary(
+    eta_si: f64,
+    shear_modulus_n_per_m: f64,
+    visc: Option<&MembraneViscosity>,
+    substeps: u32,
+    dt: f64,
+) -> serde_json::Value {
+    let mu = 0.5 * VERTEX_MASS;
+    let h = dt / substeps as f64;
+    let fraction = visc.map(|v| {
+        let g = v.gamma_t + v.gamma_c;
+        let a = (-g * h / mu).exp();
+        mu / (h * (a / (1.0 - a) + 0.5)) / g
+    });
+    json!({
+        "pa_s_m": eta_si,
+        "model": visc.map(|v| v.eta()).unwrap_or(0.0),
+        "gamma_t": visc.map(|v| v.gamma_t).unwrap_or(0.0),
+        "gamma_c": visc.map(|v| v.gamma_c).unwrap_or(0.0),
+        "kelvin_voigt_time_s": eta_si / shear_modulus_n_per_m,
+        "substeps": substeps,
+        "effective_friction_fraction": fraction,
+        "note": "2D membrane viscosity η_m (0: off, the paper's model); model units E τ/r²; Fedosov's link friction with γ_C = γ_T/3, η_m = √3 γ_T + √3 γ_C/4; η_m/μ0 is the Kelvin–Voigt time of the membrane alone; substeps: membrane sub-steps per fluid step (model.membrane_substeps); effective_friction_fraction: the link friction the scheme acts with on slow motion, over γ_T + γ_C (null without viscosity; docs/model.md §7b)",
+    })
+}
+
 pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> {
     let fail = |key: &str, value: String, allowed: &str| ScenarioError::Value {
         file: file.into(),
@@ -515,6 +616,7 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
             "1e-4–0.004 model units (default 0.0025): the capillary fluid keeps its temperature up to 0.004 and runs 9 % hot at 0.005 (docs/units.md)",
         )?;
     }
+    validate_substeps(&s.model.membrane_substeps, file)?;
     range(
         "model.wall_repulsion_range_rc",
         s.model.wall_repulsion_range_rc,
@@ -644,6 +746,8 @@ pub struct Plan<'a> {
     /// Steps of each stage (its longest duration).
     pub stage_steps: Vec<u64>,
     pub frame_every: u64,
+    /// Membrane sub-steps per fluid step (`model.membrane_substeps`, resolved).
+    pub substeps: u32,
     toml: String,
 }
 
@@ -671,6 +775,12 @@ impl<'a> Plan<'a> {
         } else {
             0
         };
+        let substeps = resolve_substeps(
+            &s.model.membrane_substeps,
+            cell_membrane_viscosity(&s.cell, &map).as_ref(),
+            dt,
+            VERTEX_MASS,
+        );
         Ok(Plan {
             s,
             sys,
@@ -684,6 +794,7 @@ impl<'a> Plan<'a> {
             shape,
             stage_steps,
             frame_every,
+            substeps,
             toml: toml::to_string(s).unwrap_or_default(),
         })
     }
@@ -704,7 +815,12 @@ impl<'a> Plan<'a> {
 
     /// The force field (see the module docs).
     fn field(&self, vertex_density: f64) -> Result<ForceField, RunError> {
-        cell_fluid_field(&self.fluid, self.s.plasma.viscosity_ratio, vertex_density)
+        cell_fluid_field(
+            &self.fluid,
+            self.s.plasma.viscosity_ratio,
+            vertex_density,
+            self.substeps,
+        )
     }
 
     fn wall_config(&self) -> WallConfig {
@@ -755,6 +871,7 @@ impl<'a> Plan<'a> {
             kbt: self.fluid.pair.kbt,
             seed: self.s.seed,
             viscosity: self.membrane_viscosity(),
+            substeps: self.substeps,
         }
     }
 
@@ -781,13 +898,18 @@ pub(crate) fn cell_membrane_viscosity(cell: &CellSection, map: &UnitMapping) -> 
     (eta > 0.0).then(|| MembraneViscosity::from_eta(map.membrane_viscosity_to_model(eta)))
 }
 
+/// Mass of a membrane vertex (model units; the fluid's).
+pub(crate) const VERTEX_MASS: f64 = 1.0;
+
 /// The force field of a cell in plasma (types [`OUTER`], [`WALL`], [`INNER`], [`MEMBRANE`];
 /// see the module docs): the inner fluid's γ is the outer's times `viscosity_ratio`, the
-/// membrane's friction with each side gives no slip for that side's viscosity.
+/// membrane's friction with each side gives no slip for that side's viscosity. With
+/// `substeps` > 1 the membrane type is integrated by the cell, not the engine.
 pub(crate) fn cell_fluid_field(
     fluid: &FluidModel,
     viscosity_ratio: f64,
     vertex_density: f64,
+    substeps: u32,
 ) -> Result<ForceField, RunError> {
     let p = fluid.pair;
     let (eta_o, eta_i) = (fluid.viscosity, fluid.viscosity * viscosity_ratio);
@@ -837,6 +959,10 @@ pub(crate) fn cell_fluid_field(
     set(&mut f, MEMBRANE, WALL, fsi(eta_o)).map_err(engine_err)?;
     set(&mut f, MEMBRANE, INNER, fsi(eta_i)).map_err(engine_err)?;
     set(&mut f, MEMBRANE, MEMBRANE, none).map_err(engine_err)?;
+    if let Some(t) = f.type_mut(MEMBRANE as usize) {
+        t.mass = VERTEX_MASS;
+        t.integrated_by_extension = substeps > 1;
+    }
     Ok(f)
 }
 
@@ -942,6 +1068,7 @@ fn check_membrane_timestep(plan: &Plan, model: &MembraneModel, rest: &Mesh) -> R
     let visc = plan.membrane_viscosity();
     check_membrane_timestep_for(
         plan.dt,
+        plan.substeps,
         plan.fluid.pair.kbt,
         plan.map.thermal_factor,
         visc.as_ref(),
@@ -950,21 +1077,30 @@ fn check_membrane_timestep(plan: &Plan, model: &MembraneModel, rest: &Mesh) -> R
     )
 }
 
-/// [`check_membrane_timestep`] for a time step `dt`, the fluid's `kbt`, thermal factor `f` and
-/// the membrane viscosity (if any).
+/// [`check_membrane_timestep`] for a time step `dt` with `substeps` membrane sub-steps (the
+/// dry run takes the membrane's own step dt/substeps), the fluid's `kbt`, thermal factor `f`
+/// and the membrane viscosity (if any).
 pub(crate) fn check_membrane_timestep_for(
-    dt0: f64,
+    dt_fluid: f64,
+    substeps: u32,
     kbt: f64,
     f: f64,
     visc: Option<&MembraneViscosity>,
     model: &MembraneModel,
     rest: &Mesh,
 ) -> Result<(), RunError> {
-    let mass = 1.0;
+    let mass = VERTEX_MASS;
+    let k = substeps.max(1);
+    let dt0 = dt_fluid / k as f64;
     let dry = |dt: f64| hemodpd_membrane::coupling::dry_run(model, &rest.vertices, dt, kbt, mass, visc, DRY_RUN_STEPS);
     let Some(step) = dry(dt0) else {
         return Ok(());
     };
+    if k > 1 {
+        return Err(RunError::Output(format!(
+            "model.timestep = {dt_fluid} with model.membrane_substeps = {k} is too fast for the membrane: a dry run of the membrane alone (no fluid, thermal velocities) at its inner step {dt0:.3e} became unstable at step {step} of {DRY_RUN_STEPS}; likely cause: the membrane's stiffest mode (its moduli in model units grow as the thermal factor falls: f = {f:.3}); raise model.membrane_substeps or lower model.timestep"
+        )));
+    }
     let mut dt = dt0;
     let stable = (0..8).find_map(|_| {
         dt *= 0.5;
@@ -1781,6 +1917,13 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let known =
         timers.bounce_s + timers.membrane_forces_s + timers.checks_s + timers.viscosity_s + walls_s + run.output_s;
     let visc = plan.membrane_viscosity();
+    let visc_summary = membrane_viscosity_summary(
+        plan.s.cell.membrane_viscosity_pa_s_m,
+        plan.sys.shear_modulus_n_per_m,
+        visc.as_ref(),
+        plan.substeps,
+        plan.dt,
+    );
     Ok(json!({
         "unit_mapping": {
             "length_m": m.length_m, "energy_j": m.energy_j, "time_s": m.time_s,
@@ -1793,14 +1936,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             "tube_radius_rc": plan.radius, "tube_length_rc": plan.length, "box_rc": plan.box_lengths.to_array(),
             "particles": run.sim.particles().len(), "vertices": cell.vertices().len(), "timestep": plan.dt,
         },
-        "membrane_viscosity": {
-            "pa_s_m": plan.s.cell.membrane_viscosity_pa_s_m,
-            "model": visc.map(|v| v.eta()).unwrap_or(0.0),
-            "gamma_t": visc.map(|v| v.gamma_t).unwrap_or(0.0),
-            "gamma_c": visc.map(|v| v.gamma_c).unwrap_or(0.0),
-            "kelvin_voigt_time_s": plan.s.cell.membrane_viscosity_pa_s_m / plan.sys.shear_modulus_n_per_m,
-            "note": "2D membrane viscosity η_m (0: off, the paper's model); model units E τ/r²; Fedosov's link friction with γ_C = γ_T/3, η_m = √3 γ_T + √3 γ_C/4; η_m/μ0 is the Kelvin–Voigt time of the membrane alone",
-        },
+        "membrane_viscosity": visc_summary,
         "mesh": run.mesh_info,
         "stages": stages,
         "driven": driven,
@@ -2073,6 +2209,30 @@ mod tests {
         assert!((tau - 0.004).abs() < 2e-5, "{tau}");
         // a flat series does not decay
         assert!(decay_time(&t, &vec![1.0; 400]).is_nan());
+    }
+
+    /// "auto" membrane sub-steps: the smallest k with (γ_T + γ_C)(Δt/k)/μ ≤ 1 (μ = ½ for unit
+    /// vertex masses), 1 without a viscosity; a count is taken as it is (default 1). The physiological
+    /// 6.3e-7 N·s/m of the default capillary mapping (γ_T + γ_C ≈ 9923 at Δt = 0.0025) gives 50.
+    #[test]
+    fn automatic_membrane_substeps() {
+        let v = MembraneViscosity {
+            gamma_t: 7442.5,
+            gamma_c: 7442.5 / 3.0,
+        };
+        let auto = SubstepSetting::Word("auto".into());
+        assert_eq!(resolve_substeps(&auto, Some(&v), 0.0025, 1.0), 50);
+        assert_eq!(resolve_substeps(&auto, None, 0.0025, 1.0), 1);
+        assert_eq!(resolve_substeps(&SubstepSetting::Count(7), Some(&v), 0.0025, 1.0), 7);
+        assert_eq!(resolve_substeps(&d_substeps(), Some(&v), 0.0025, 1.0), 1);
+        let weak = MembraneViscosity {
+            gamma_t: 10.0,
+            gamma_c: 10.0 / 3.0,
+        };
+        assert_eq!(resolve_substeps(&auto, Some(&weak), 0.0025, 1.0), 1);
+        let k = resolve_substeps(&auto, Some(&v), 0.0025, 1.0) as f64;
+        assert!((v.gamma_t + v.gamma_c) * 0.0025 / k / 0.5 <= 1.0);
+        assert!((v.gamma_t + v.gamma_c) * 0.0025 / (k - 1.0) / 0.5 > 1.0);
     }
 
     /// The wall radius carries the no-slip flux of the physical radius: R_w⁴(1 + 4b/R_w) = R⁴.

@@ -16,9 +16,10 @@
 //! `analysis_start_strain`; `hemodpd analyze` does the same from a trajectory.
 
 use crate::capillary::{
-    cell_fluid_field, cell_membrane_viscosity, cell_mesh_um, cell_params, check_membrane_timestep_for,
-    describe_engine_error, membrane_model, thermal_choice, validate_cell, validate_thermal, CellSection,
-    ThermalSetting, INNER, MEMBRANE, OUTER, WALL,
+    cell_fluid_field, cell_membrane_viscosity, cell_mesh_um, cell_params, check_membrane_timestep_for, d_substeps,
+    describe_engine_error, membrane_model, membrane_viscosity_summary, resolve_substeps, thermal_choice, validate_cell,
+    validate_substeps, validate_thermal, CellSection, SubstepSetting, ThermalSetting, INNER, MEMBRANE, OUTER,
+    VERTEX_MASS, WALL,
 };
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
@@ -155,6 +156,10 @@ pub struct ShearModelSection {
     /// "maxwell" (default) or "bounce-back" (docs/capillary.md).
     #[serde(default)]
     pub membrane_reflection: MembraneReflection,
+    /// Membrane sub-steps per fluid step: 1–1000 (default 1) or "auto", as the capillary's
+    /// `model.membrane_substeps` (docs/model.md §7b).
+    #[serde(default = "d_substeps")]
+    pub membrane_substeps: SubstepSetting,
 }
 
 /// `[output]`.
@@ -457,6 +462,7 @@ pub fn validate(s: &ShearScenario, file: &str) -> Result<(), ScenarioError> {
             "1e-4–0.004 model units (default 0.0025, the capillary fluid's)",
         )?;
     }
+    validate_substeps(&s.model.membrane_substeps, file)?;
     range(
         "model.wall_repulsion_range_rc",
         s.model.wall_repulsion_range_rc,
@@ -508,6 +514,8 @@ pub struct Plan<'a> {
     pub steps: u64,
     pub sample_every: u64,
     pub frame_every: u64,
+    /// Membrane sub-steps per fluid step (`model.membrane_substeps`, resolved).
+    pub substeps: u32,
     toml: String,
 }
 
@@ -547,12 +555,19 @@ impl<'a> Plan<'a> {
         } else {
             0
         };
+        let substeps = resolve_substeps(
+            &s.model.membrane_substeps,
+            cell_membrane_viscosity(&s.cell, &map).as_ref(),
+            dt,
+            VERTEX_MASS,
+        );
         Ok(Plan {
             s,
             sys,
             map,
             fluid,
             dt,
+            substeps,
             rate,
             box_lengths: l,
             plates,
@@ -617,6 +632,7 @@ impl<'a> Plan<'a> {
             kbt: self.fluid.pair.kbt,
             seed: self.s.seed,
             viscosity: cell_membrane_viscosity(&self.s.cell, &self.map),
+            substeps: self.substeps,
         }
     }
 
@@ -638,6 +654,7 @@ fn build(plan: &Plan) -> Result<(ShearSim, Mesh, serde_json::Value), RunError> {
     let visc = cell_membrane_viscosity(&plan.s.cell, &plan.map);
     check_membrane_timestep_for(
         plan.dt,
+        plan.substeps,
         plan.fluid.pair.kbt,
         plan.map.thermal_factor,
         visc.as_ref(),
@@ -672,7 +689,7 @@ fn build(plan: &Plan) -> Result<(ShearSim, Mesh, serde_json::Value), RunError> {
         }
     };
     let vertex_density = rest.vertices.len() as f64 / rest.area();
-    let field = cell_fluid_field(&plan.fluid, plan.viscosity_ratio(), vertex_density)?;
+    let field = cell_fluid_field(&plan.fluid, plan.viscosity_ratio(), vertex_density, plan.substeps)?;
     let mut p = Particles::with_capacity(base.len() + rest.vertices.len());
     let mut max_id = 0u32;
     for i in 0..base.len() {
@@ -902,7 +919,7 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(ShearSim, Mesh, ShearState, 
     let rest = Mesh::new(verts, triangles)?;
     let model = membrane_model(&plan.s.cell, &plan.map, &rest)?;
     let vertex_density = rest.vertices.len() as f64 / rest.area();
-    let field = cell_fluid_field(&plan.fluid, plan.viscosity_ratio(), vertex_density)?;
+    let field = cell_fluid_field(&plan.fluid, plan.viscosity_ratio(), vertex_density, plan.substeps)?;
     let first = particles
         .ptype
         .iter()
@@ -1050,6 +1067,13 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             "box_rc": plan.box_lengths.to_array(), "particles": run.sim.particles().len(),
             "vertices": cell.vertices().len(), "timestep": plan.dt,
         },
+        "membrane_viscosity": membrane_viscosity_summary(
+            plan.s.cell.membrane_viscosity_pa_s_m,
+            plan.sys.shear_modulus_n_per_m,
+            cell_membrane_viscosity(&plan.s.cell, &plan.map).as_ref(),
+            plan.substeps,
+            plan.dt,
+        ),
         "mesh": run.mesh_info,
         "crossings": {
             "bounces": stats.bounces,

@@ -60,6 +60,13 @@ fn field(fluid: PairParams, fsi_gamma: f64) -> ForceField {
     f
 }
 
+/// [`field`] with the membrane type integrated by the cell (for sub-stepping).
+fn substep_field(fluid: PairParams, fsi_gamma: f64) -> ForceField {
+    let mut f = field(fluid, fsi_gamma);
+    f.type_mut(MEMBRANE as usize).unwrap().integrated_by_extension = true;
+    f
+}
+
 fn momentum(p: &Particles) -> DVec3 {
     p.vel.iter().fold(DVec3::ZERO, |a, v| a + *v) // every mass is 1
 }
@@ -96,6 +103,7 @@ fn cell_crossing_the_periodic_boundary_is_unchanged() {
             reflection: MembraneReflection::BounceBack,
             kbt: 1.0,
             seed: 1,
+            substeps: 1,
             viscosity: None,
         };
         let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
@@ -146,12 +154,28 @@ fn fluid_stays_on_its_side_for_ten_thousand_steps() {
 }
 
 fn moving_cell(reflection: MembraneReflection, steps: u64, check_every: u64, flow: DVec3) {
+    moving_cell_with(reflection, steps, check_every, flow, 1, None);
+}
+
+/// [`moving_cell`] with `substeps` membrane sub-steps and a membrane viscosity.
+fn moving_cell_with(
+    reflection: MembraneReflection,
+    steps: u64,
+    check_every: u64,
+    flow: DVec3,
+    substeps: u32,
+    viscosity: Option<MembraneViscosity>,
+) {
     let l = 12.0;
     let centre = DVec3::splat(l / 2.0);
     let (mesh, model) = cell_mesh(300, centre);
     let config = SimConfig::new(DVec3::splat(l), 0.002, 9);
     let fluid = PairParams::groot_warren();
-    let f = field(fluid, 4.5);
+    let f = if substeps > 1 {
+        substep_field(fluid, 4.5)
+    } else {
+        field(fluid, 4.5)
+    };
     let box_ = PeriodicBox::new(config.box_lengths).unwrap();
     let fluid_p = init::fluid(&config, &ForceField::single(fluid), &init::FluidSpec::standard(), 4).unwrap();
     let mut p = Particles::with_capacity(fluid_p.len() + mesh.vertices.len());
@@ -187,7 +211,8 @@ fn moving_cell(reflection: MembraneReflection, steps: u64, check_every: u64, flo
         reflection,
         kbt: 1.0,
         seed: 1,
-        viscosity: None,
+        substeps,
+        viscosity,
     };
     let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
     let (tested0, wrong0) = cell.count_misplaced(&p.pos, &p.ptype, &box_);
@@ -297,6 +322,7 @@ fn cell_pushed_against_the_wall_stays_out_of_it() {
         reflection: MembraneReflection::Maxwell,
         kbt: 1.0,
         seed: 2,
+        substeps: 1,
         viscosity: None,
     };
     let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
@@ -425,6 +451,7 @@ fn cell_straddling_the_shear_plane_is_unchanged() {
             reflection: MembraneReflection::BounceBack,
             kbt: 1.0,
             seed: 1,
+            substeps: 1,
             viscosity: None,
         };
         let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
@@ -499,6 +526,7 @@ fn fluid_stays_on_its_side_of_a_cell_on_the_shear_plane() {
         reflection: MembraneReflection::Maxwell,
         kbt: 1.0,
         seed: 1,
+        substeps: 1,
         viscosity: None,
     };
     let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
@@ -580,6 +608,7 @@ fn membrane_viscosity_thermalises_a_cell_at_kbt() {
         reflection: MembraneReflection::Maxwell,
         kbt,
         seed: 5,
+        substeps: 1,
         viscosity: Some(MembraneViscosity {
             gamma_t: 1000.0,
             gamma_c: 1000.0 / 3.0,
@@ -650,6 +679,7 @@ fn membrane_viscosity_is_deterministic_across_threads() {
                 reflection: MembraneReflection::Maxwell,
                 kbt: 1.0,
                 seed: 3,
+                substeps: 1,
                 viscosity: Some(MembraneViscosity::from_eta(2000.0)),
             };
             let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
@@ -681,6 +711,7 @@ fn invalid_membrane_viscosity_is_an_error() {
             reflection: MembraneReflection::Maxwell,
             kbt: 1.0,
             seed: 1,
+            substeps: 1,
             viscosity: Some(MembraneViscosity {
                 gamma_t: gt,
                 gamma_c: gc,
@@ -710,4 +741,275 @@ fn dry_run_includes_membrane_viscosity() {
         dry_run(&model, &mesh.vertices, 0.012, 1.0, 1.0, Some(&visc), 2000),
         None
     );
+}
+
+/// A cell alone (no fluid, no viscosity), moving at 20 rc per time unit through a 12³ box, or
+/// straddling the Lees–Edwards plane of a sheared one (γ̇ = 0.8): with no slow force, k = 4
+/// sub-steps of a step Δt are velocity Verlet with steps Δt/4, so its unwrapped positions after
+/// 450 steps agree with the engine-integrated cell (k = 1) after 1800 steps of Δt/4 in an
+/// unsheared 100³ box. Round-off only (the engine's positions go through wrap and minimum image,
+/// the sub-steps' do not): 1e-9 as in the periodic-boundary tests above. This checks the
+/// sub-steps' wrap of positions and Lees–Edwards velocity shifts.
+#[test]
+fn substeps_of_a_lone_cell_are_small_velocity_verlet_steps() {
+    let run = |l: f64, rate: f64, substeps: u32, vel: DVec3| {
+        let (mesh, model) = cell_mesh(200, DVec3::new(6.0, 1.0, 6.0));
+        let k = substeps as f64;
+        let (dt, steps) = (0.001 * k, (1800.0 / k) as u64);
+        let config = SimConfig::new(DVec3::splat(l), dt, 5).with_shear_rate(rate);
+        let none = PairParams {
+            a: 0.0,
+            gamma: 0.0,
+            kbt: 0.0,
+            ..PairParams::groot_warren()
+        };
+        let ty = TypeSpec {
+            integrated_by_extension: substeps > 1,
+            ..TypeSpec::new("membrane")
+        };
+        let f = ForceField::new(vec![ty], none).unwrap();
+        let mut p = Particles::with_capacity(mesh.vertices.len());
+        for (k, v) in mesh.vertices.iter().enumerate() {
+            p.push(*v, vel, 0, k as u32);
+        }
+        let cfg = CellConfig {
+            first: 0,
+            outer_type: u16::MAX,
+            inner_type: u16::MAX,
+            check_every: 0,
+            wall: None,
+            reflection: MembraneReflection::BounceBack,
+            kbt: 1.0,
+            seed: 1,
+            substeps,
+            viscosity: None,
+        };
+        let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
+        let mut sim = Simulation::with_extension(config, f, p, cell).unwrap();
+        let mut straddled = false;
+        for _ in 0..steps {
+            sim.step().unwrap();
+            let ys = sim.particles().pos.iter().map(|x| x.y);
+            straddled |= ys.clone().fold(f64::INFINITY, f64::min) < 1.0 && ys.fold(0.0, f64::max) > l - 1.0;
+        }
+        // sub-stepped, the wrapped positions are the unwrapped ones wrapped
+        let cell = sim.extension();
+        if substeps > 1 {
+            for (u, w) in cell.vertices().iter().zip(&sim.particles().pos) {
+                assert_eq!(sim.domain().wrap(*u), *w);
+            }
+        }
+        (cell.vertices().to_vec(), straddled)
+    };
+    for (vel, rate) in [(DVec3::new(20.0, 7.0, -3.0), 0.0), (DVec3::new(3.0, -7.0, 1.0), 0.8)] {
+        let (xs, straddled) = run(12.0, rate, 4, vel);
+        let (xb, _) = run(100.0, 0.0, 1, vel);
+        assert!(rate == 0.0 || straddled, "the cell never straddled the shear plane");
+        let dx = xs.iter().zip(&xb).map(|(a, b)| (*a - *b).length()).fold(0.0, f64::max);
+        eprintln!("rate {rate}: k = 4 vs k = 1 at Δt/4: max |Δx| = {dx:.2e}");
+        assert!(dx < 1e-9, "unwrapped positions differ by {dx}");
+    }
+}
+
+/// With k = 5 sub-steps and a stiff membrane viscosity (η_m = 2000: (γ_T + γ_C)h/μ ≈ 1.6): the
+/// moving, spinning cell of [`fluid_stays_on_its_side_of_a_moving_cell`] keeps every fluid
+/// particle on its side and the total momentum of fluid and vertices to round-off (the pair
+/// forces reach both partners as the same two half-kicks; the membrane forces and the sweep
+/// conserve momentum).
+#[test]
+fn substepped_cell_keeps_fluid_on_its_side_and_momentum() {
+    let visc = MembraneViscosity::from_eta(2000.0);
+    moving_cell_with(MembraneReflection::Maxwell, 600, 10, DVec3::ZERO, 5, Some(visc));
+    moving_cell_with(
+        MembraneReflection::Maxwell,
+        600,
+        10,
+        DVec3::new(0.6, 0.0, 0.2),
+        5,
+        Some(visc),
+    );
+}
+
+/// A cell in a 12³ box of fluid (ρ = 3, Δt = 0.002 and the fluid's kBT = 1).
+fn cell_in_fluid(substeps: u32, viscosity: Option<MembraneViscosity>, seed: u64) -> Simulation<Cell> {
+    let l = 12.0;
+    let centre = DVec3::splat(l / 2.0);
+    let (mesh, model) = cell_mesh(300, centre);
+    let config = SimConfig::new(DVec3::splat(l), 0.002, seed);
+    let fluid = PairParams::groot_warren();
+    let f = if substeps > 1 {
+        substep_field(fluid, 4.5)
+    } else {
+        field(fluid, 4.5)
+    };
+    let fluid_p = init::fluid(&config, &ForceField::single(fluid), &init::FluidSpec::standard(), seed).unwrap();
+    let mut p = Particles::with_capacity(fluid_p.len() + mesh.vertices.len());
+    for i in 0..fluid_p.len() {
+        let x = fluid_p.pos[i];
+        let t = if crate::mesh::contains(x, &mesh.vertices, &mesh.triangles) {
+            INNER
+        } else {
+            OUTER
+        };
+        p.push(x, fluid_p.vel[i], t, i as u32);
+    }
+    let first = p.len();
+    for (k, v) in mesh.vertices.iter().enumerate() {
+        p.push(*v, DVec3::new(0.3, 0.0, 0.0), MEMBRANE, (first + k) as u32);
+    }
+    let cfg = CellConfig {
+        first,
+        outer_type: OUTER,
+        inner_type: INNER,
+        check_every: 50,
+        wall: None,
+        reflection: MembraneReflection::Maxwell,
+        kbt: 1.0,
+        seed,
+        substeps,
+        viscosity,
+    };
+    let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
+    Simulation::with_extension(config, f, p, cell).unwrap()
+}
+
+/// A cell at rest in fluid with a physiologically stiff membrane viscosity (η_m = 14 000 model
+/// units: γ_T + γ_C ≈ 9950, as 6.3e-7 N·s/m in the capillary's units) and k = 25 sub-steps
+/// ((γ_T + γ_C)h/μ ≈ 1.6): the vertices sit at the fluid's kBT and the area and volume are held.
+/// The vertex temperature m Σ|v − v_cm|²/(3(N − 1)) is sampled every 10 steps over 2000 steps
+/// after 500 of equilibration.
+///
+/// Tolerance: 4 standard errors from 20 blocks of 10 samples, plus 2 % for the fluid's own
+/// Groot–Warren temperature bias at Δt = 0.002 and the slow forces' half-kicks (the vertices
+/// exchange energy with the fluid through the pair friction, integrated at Δt). Area and
+/// volume: the largest deviation over the 200 samples within 3 % and 2 % of the mesh's; the
+/// test mesh's constraints are soft (k_a = 2e-4 N/m, k_v = 100 N/m², a tenth of the
+/// scenarios'), so the area fluctuates thermally by ~1 % (measured 1.2 % and 0.45 %).
+#[test]
+fn substepped_viscous_cell_in_fluid_is_at_kbt() {
+    let visc = MembraneViscosity::from_eta(14_000.0);
+    assert!((visc.gamma_t + visc.gamma_c - 9950.0).abs() < 10.0);
+    let mut sim = cell_in_fluid(25, Some(visc), 11);
+    let (a0, v0) = {
+        let c = sim.extension();
+        c.model().area_volume(c.vertices()).unwrap()
+    };
+    sim.run(500).unwrap();
+    let (blocks, per_block, every) = (20, 10, 10);
+    let mut means = Vec::with_capacity(blocks);
+    let (mut da, mut dv): (f64, f64) = (0.0, 0.0);
+    let range = sim.extension().vertex_range();
+    let n = range.len() as f64;
+    for _ in 0..blocks {
+        let mut sum = 0.0;
+        for _ in 0..per_block {
+            sim.run(every).unwrap();
+            let v = &sim.particles().vel[range.clone()];
+            let vcm = v.iter().fold(DVec3::ZERO, |a, b| a + *b) / n;
+            sum += v.iter().map(|u| (*u - vcm).length_squared()).sum::<f64>() / (3.0 * (n - 1.0));
+            let c = sim.extension();
+            let (a, vol) = c.model().area_volume(c.vertices()).unwrap();
+            da = da.max((a / a0 - 1.0).abs());
+            dv = dv.max((vol / v0 - 1.0).abs());
+        }
+        means.push(sum / per_block as f64);
+    }
+    let nb = blocks as f64;
+    let t = means.iter().sum::<f64>() / nb;
+    let se = (means.iter().map(|m| (m - t).powi(2)).sum::<f64>() / (nb - 1.0) / nb).sqrt();
+    let s = sim.extension().stats();
+    eprintln!(
+        "k = 25, η_m on: vertex temperature {t:.4} kBT (SE {se:.4}); max |ΔA/A| {da:.2e}, |ΔV/V| {dv:.2e}; {s:?}"
+    );
+    assert_eq!(s.misplaced, 0);
+    assert!((t - 1.0).abs() < 4.0 * se + 0.02, "vertex temperature {t} (SE {se})");
+    assert!(da < 0.03 && dv < 0.02, "area {da}, volume {dv}");
+}
+
+/// Sub-stepping with the viscosity is deterministic: 40 steps give bit-identical positions,
+/// velocities and counters on 1 and 2 rayon threads, and a run stopped after 20 steps and
+/// rebuilt from its saved state (engine state, cell state through JSON as the checkpoint holds
+/// it, a new `Cell`) ends bit-identical to the uninterrupted one.
+#[test]
+fn substepped_cell_is_deterministic_across_threads_and_restarts() {
+    let visc = MembraneViscosity::from_eta(2000.0);
+    let run = |threads: usize, stop: Option<u64>| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| {
+            let mut sim = cell_in_fluid(3, Some(visc), 3);
+            if let Some(k) = stop {
+                sim.run(k).unwrap();
+                let (state, cell) = sim.into_parts();
+                let json = serde_json::to_string(&cell.state()).unwrap();
+                let saved: CellState = serde_json::from_str(&json).unwrap();
+                assert_eq!(saved.fast_forces.len(), cell.vertices().len());
+                let fresh = Cell::new(cell.model().clone(), cell.config().clone(), cell.vertices().to_vec())
+                    .unwrap()
+                    .with_state(saved)
+                    .unwrap();
+                sim = Simulation::from_state(state, fresh).unwrap();
+                sim.run(40 - k).unwrap();
+            } else {
+                sim.run(40).unwrap();
+            }
+            let pt = sim.particles();
+            (pt.pos.clone(), pt.vel.clone(), sim.extension().stats().clone())
+        })
+    };
+    let (x1, v1, s1) = run(1, None);
+    let (x2, v2, s2) = run(2, None);
+    assert!(s1.bounces > 0);
+    assert_eq!(s1, s2);
+    assert!(x1 == x2 && v1 == v2, "trajectories differ between 1 and 2 threads");
+    let (x3, v3, s3) = run(2, Some(20));
+    assert_eq!(s1, s3);
+    assert!(x1 == x3 && v1 == v3, "the restarted trajectory differs");
+}
+
+/// The vertex type must match the sub-stepping: integrated by the cell exactly when k > 1;
+/// otherwise the first hook (the initial force evaluation) fails with an error naming the
+/// type. k = 0 is refused by `Cell::new`.
+#[test]
+fn substeps_and_vertex_type_must_agree() {
+    let (mesh, model) = cell_mesh(200, DVec3::splat(6.0));
+    let none = PairParams {
+        a: 0.0,
+        gamma: 0.0,
+        kbt: 0.0,
+        ..PairParams::groot_warren()
+    };
+    let cfg = |substeps| CellConfig {
+        first: 0,
+        outer_type: u16::MAX,
+        inner_type: u16::MAX,
+        check_every: 0,
+        wall: None,
+        reflection: MembraneReflection::Maxwell,
+        kbt: 1.0,
+        seed: 1,
+        substeps,
+        viscosity: None,
+    };
+    for (substeps, integrated, frozen) in [(2, false, false), (1, true, false), (3, true, true)] {
+        let ty = TypeSpec {
+            integrated_by_extension: integrated,
+            frozen,
+            ..TypeSpec::new("membrane")
+        };
+        // an unused mobile type 0: a field of only frozen types is refused
+        let f = ForceField::new(vec![TypeSpec::new("fluid"), ty], none).unwrap();
+        let mut p = Particles::with_capacity(mesh.vertices.len());
+        for (k, v) in mesh.vertices.iter().enumerate() {
+            p.push(*v, DVec3::ZERO, 1, k as u32);
+        }
+        let cell = Cell::new(model.clone(), cfg(substeps), mesh.vertices.clone()).unwrap();
+        let e = Simulation::with_extension(SimConfig::new(DVec3::splat(12.0), 0.002, 1), f, p, cell).unwrap_err();
+        let msg = e.to_string();
+        assert!(
+            msg.contains("cell vertex type") && msg.contains(&format!("substeps = {substeps}")),
+            "{msg}"
+        );
+    }
+    let e = Cell::new(model, cfg(0), mesh.vertices.clone()).unwrap_err();
+    assert!(e.to_string().contains("substeps"), "{e}");
 }
