@@ -301,11 +301,12 @@ fn sweep_grid(dir: &Path, name: &str, sets: &[&str], vary: &str) -> Vec<Value> {
 }
 
 /// One row of the validation table.
-fn point_row(n: u64, r: &Value) -> String {
+fn point_row(n: u64, visc: bool, r: &Value) -> String {
     let m = &r["motion"];
     let num = |v: &Value, d: usize| v.as_f64().map_or("–".to_string(), |x| format!("{x:.d$}"));
     format!(
-        "| {n} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+        "| {n} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+        if visc { "6.3e-7" } else { "0" },
         num(&r["shear"]["outer_viscosity_pa_s"].as_f64().map(|x| x * 1e3).into(), 1),
         num(&r["shear"]["shear_stress_pa"], 3),
         num(&r["shear"]["shear_rate_per_s"], 1),
@@ -348,11 +349,13 @@ fn shear_validation_fig4() {
     std::fs::create_dir_all(&dir).unwrap();
     let figs = std::env::var_os("HEMODPD_FIGURES_DIR").map(PathBuf::from);
     let stresses = "shear.shear_stress_pa=0.05,0.1,0.2,0.5,1,2";
-    let grids: Vec<(u64, &str, Vec<Value>)> = vec![
-        (500, "28.9", sweep_grid(&dir, "shear-n500", &[], stresses)),
+    // (N, η_out in mPa·s, membrane viscosity on, the points)
+    let grids: Vec<(u64, &str, bool, Vec<Value>)> = vec![
+        (500, "28.9", false, sweep_grid(&dir, "shear-n500", &[], stresses)),
         (
             1000,
             "28.9",
+            false,
             sweep_grid(
                 &dir,
                 "shear-n1000",
@@ -367,6 +370,7 @@ fn shear_validation_fig4() {
         (
             500,
             "23.9",
+            false,
             sweep_grid(
                 &dir,
                 "shear-n500-eta23.9",
@@ -379,20 +383,36 @@ fn shear_validation_fig4() {
                 "shear.shear_stress_pa=0.1912,0.4063,0.9082",
             ),
         ),
+        (
+            500,
+            "28.9",
+            true,
+            sweep_grid(
+                &dir,
+                "shear-n500-visc",
+                &[
+                    "cell.membrane_viscosity_pa_s_m=6.3e-7",
+                    "model.membrane_substeps=auto",
+                    "shear.duration_strain=30",
+                    "shear.analysis_start_strain=10",
+                ],
+                "shear.shear_stress_pa=0.5,2",
+            ),
+        ),
     ];
-    println!("| N | η_out (mPa·s) | stress (Pa) | γ̇ (1/s) | Ca | f | class | flips per strain | f_TT/γ̇ | θ (°) | swing ± (°) | s per strain |");
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
-    for (n, _, rs) in &grids {
+    println!("| N | η_m (N·s/m) | η_out (mPa·s) | stress (Pa) | γ̇ (1/s) | Ca | f | class | flips per strain | f_TT/γ̇ | θ (°) | swing ± (°) | s per strain |");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for (n, _, visc, rs) in &grids {
         for r in rs {
-            println!("{}", point_row(*n, r));
+            println!("{}", point_row(*n, *visc, r));
             assert_eq!(r["crossings"]["misplaced_total"], 0, "{}", r["crossings"]);
         }
     }
     // the transition: between the last tumbling and the first tank-treading stress
     let thresholds = reference_rows("shear_tt_tb_threshold_stress.csv");
-    println!("\n| N | η_out (mPa·s) | transition stress (Pa) | experiments at similar η_out |");
-    println!("|---|---|---|---|");
-    for (n, eta, rs) in &grids {
+    println!("\n| N | η_m | η_out (mPa·s) | transition stress (Pa) | experiments at similar η_out |");
+    println!("|---|---|---|---|---|");
+    for (n, eta, visc, rs) in &grids {
         let last_tb = rs
             .iter()
             .filter(|r| r["motion"]["class"] == "Tumbling")
@@ -412,8 +432,12 @@ fn shear_validation_fig4() {
             })
             .map(|row| format!("{} {} mPa·s: {} Pa", row[0], row[1], row[2]))
             .collect();
-        println!("| {n} | {eta} | {last_tb} – {first_tt} | {} |", near.join("; "));
-        if *eta == "28.9" && *n == 500 {
+        println!(
+            "| {n} | {} | {eta} | {last_tb} – {first_tt} | {} |",
+            if *visc { "6.3e-7" } else { "0" },
+            near.join("; ")
+        );
+        if *eta == "28.9" && *n == 500 && !*visc {
             assert!(
                 rs.first().unwrap()["motion"]["class"] == "Tumbling" && is_tt(rs.last().unwrap()),
                 "the transition is not inside the N = 500 grid"
@@ -426,10 +450,15 @@ fn shear_validation_fig4() {
         .iter()
         .map(|r| (r[1].parse().unwrap(), r[2].parse().unwrap()))
         .collect();
-    println!("\n| γ̇ (1/s) | model f_TT/γ̇ (N = 500) | Fischer cells within ±20 % of γ̇: mean ± sd (n) |");
-    println!("|---|---|---|");
-    let mut model_pts = Vec::new();
-    for r in grids[0].2.iter().filter(|r| is_tt(r)) {
+    println!("\n| γ̇ (1/s) | η_m (N·s/m) | model f_TT/γ̇ (N = 500) | Fischer cells within ±20 % of γ̇: mean ± sd (n) |");
+    println!("|---|---|---|---|");
+    let mut model_pts = [Vec::new(), Vec::new()];
+    let tt_points = grids[0]
+        .3
+        .iter()
+        .map(|r| (false, r))
+        .chain(grids[3].3.iter().map(|r| (true, r)));
+    for (visc, r) in tt_points.filter(|(_, r)| is_tt(r)) {
         let rate = f(&r["shear"]["shear_rate_per_s"]);
         let v = f(&r["motion"]["tank_treading_frequency_over_shear_rate"]);
         let near: Vec<f64> = exp
@@ -444,10 +473,14 @@ fn shear_validation_fig4() {
             let sd = (near.iter().map(|x| (x - m).powi(2)).sum::<f64>() / near.len() as f64).sqrt();
             (m, sd)
         };
-        println!("| {rate:.1} | {v:.4} | {mean:.4} ± {sd:.4} ({}) |", near.len());
+        println!(
+            "| {rate:.1} | {} | {v:.4} | {mean:.4} ± {sd:.4} ({}) |",
+            if visc { "6.3e-7" } else { "0" },
+            near.len()
+        );
         // bounded by a rigid sphere's rotation γ̇/2, i.e. f/γ̇ < 1/(4π); above Fischer's slowest cells
         assert!(v > 0.016 && v < 0.25 / std::f64::consts::PI, "f/γ̇ = {v} at {rate} 1/s");
-        model_pts.push((rate, v));
+        model_pts[visc as usize].push((rate, v));
     }
     // the inclination against Fischer 2015 at 23.9 mPa·s
     let incl = reference_rows("shear_inclination_angle_fischer2015.csv");
@@ -459,7 +492,7 @@ fn shear_validation_fig4() {
     println!("\n| γ̇ (1/s) | model θ (°), N = 500, 23.9 mPa·s | class | Fischer 2015 cells within ±30 % of γ̇: mean ± sd (n) |");
     println!("|---|---|---|---|");
     let mut incl_pts = Vec::new();
-    for r in &grids[2].2 {
+    for r in &grids[2].3 {
         let rate = f(&r["shear"]["shear_rate_per_s"]);
         let th = f(&r["motion"]["mean_inclination_deg"]);
         let near: Vec<f64> = exp_incl
@@ -487,7 +520,9 @@ fn shear_validation_fig4() {
             "f_TT / shear rate",
             &[
                 Series::points("Fischer (cells)", exp.clone()),
-                Series::line_with_points("model, N = 500", model_pts).with_color(200, 30, 30),
+                Series::line_with_points("model, N = 500, elastic", model_pts[0].clone()).with_color(200, 30, 30),
+                Series::line_with_points("model, N = 500, η_m = 6.3e-7 N·s/m", model_pts[1].clone())
+                    .with_color(30, 30, 200),
             ],
         )
         .unwrap();
@@ -504,8 +539,8 @@ fn shear_validation_fig4() {
         .unwrap();
         // Fig. 4 style: the rates against the stress, per N
         let mut series = Vec::new();
-        for (n, eta, rs) in &grids {
-            if *eta != "28.9" {
+        for (n, eta, visc, rs) in &grids {
+            if *eta != "28.9" || *visc {
                 continue;
             }
             let tt: Vec<(f64, f64)> = rs

@@ -1132,7 +1132,7 @@ pub fn run_from(
     let traj = if plan.frame_every > 0 {
         Some(match checkpoint {
             Some(ck) if traj_path.exists() => {
-                let last_frame = ck.step / plan.frame_every * plan.frame_every;
+                let last_frame = ck.step.checked_div(plan.frame_every).unwrap_or(0) * plan.frame_every;
                 TrajectoryWriter::open_append(&traj_path, last_frame).map_err(out_err)?
             }
             _ => {
