@@ -1604,17 +1604,64 @@ impl Run<'_> {
         particles_into_checkpoint(&mut ck, sim.particles());
         let (walls_ext, cell) = sim.extension();
         crate::channel::json_into_checkpoint(&mut ck, "walls_state_json", &walls_ext.inner.state())?;
-        crate::channel::json_into_checkpoint(&mut ck, "cell_state_json", &cell.state())?;
         crate::channel::json_into_checkpoint(&mut ck, "progress_json", &self.st)?;
-        // the membrane's topology and reference state: the resting mesh it was built on
-        ck.insert_vec3("membrane_rest_vertices", &self.rest.vertices);
-        ck.insert_u32(
-            "membrane_triangles",
-            self.rest.triangles.iter().flatten().copied().collect(),
-        );
-        crate::channel::json_into_checkpoint(&mut ck, "mesh_info_json", &self.mesh_info)?;
+        cell_into_checkpoint(&mut ck, cell, &self.rest, &self.mesh_info)?;
         ck.save_atomic(ctx.out_dir.join(CHECKPOINT_FILE)).map_err(out_err)
     }
+}
+
+/// The cell's crossing statistics for `summary.json`.
+pub(crate) fn crossings_json(stats: &hemodpd_membrane::coupling::CellStats) -> serde_json::Value {
+    json!({
+        "bounces": stats.bounces,
+        "checks": stats.checks,
+        "misplaced_total": stats.misplaced,
+        "misplaced_last_check": stats.misplaced_last,
+        "checked_last": stats.checked_last,
+        "note": "fluid particles found on the wrong side of the membrane by the inside test every model.crossing_check_every_steps steps (target 0)",
+    })
+}
+
+/// Shares of `session_s` seconds of stepping: the cell's timers, the walls, sampling and
+/// frames, and the remainder (the fluid's pair forces, the integrator, the cell lists).
+pub(crate) fn step_shares(
+    session_s: f64,
+    timers: &hemodpd_membrane::coupling::CellTimers,
+    walls_s: f64,
+    output_s: f64,
+) -> serde_json::Value {
+    json!({
+        "fluid_pairs_and_integration": (session_s - known) / session_s,
+        "bounce_back": timers.bounce_s / session_s,
+        "membrane_forces": timers.membrane_forces_s / session_s,
+        "membrane_viscosity": timers.viscosity_s / session_s,
+        "walls": walls_s / session_s,
+        "crossing_checks": timers.checks_s / session_s,
+        "sampling_and_frames": output_s / session_s,
+    })
+}
+
+/// Saves what a cell-in-flow run needs to rebuild its cell: the cell's state, the resting mesh
+/// it was built on (topology and reference state) and where the mesh came from.
+pub(crate) fn cell_into_checkpoint(
+    ck: &mut Checkpoint,
+    cell: &Cell,
+    rest: &Mesh,
+    mesh_info: &serde_json::Value,
+) -> Result<(), RunError> {
+    crate::channel::json_into_checkpoint(ck, "cell_state_json", &cell.state())?;
+    ck.insert_vec3("membrane_rest_vertices", &rest.vertices);
+    ck.insert_u32("membrane_triangles", rest.triangles.iter().flatten().copied().collect());
+    crate::channel::json_into_checkpoint(ck, "mesh_info_json", mesh_info)
+}
+
+/// The resting mesh saved by [`cell_into_checkpoint`].
+pub(crate) fn rest_mesh_from_checkpoint(ck: &Checkpoint) -> Result<Mesh, RunError> {
+    let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
+    let verts = ck.vec3s("membrane_rest_vertices", None).map_err(bad)?;
+    let tri_flat = ck.u32s("membrane_triangles").map_err(bad)?;
+    let triangles: Vec<[u32; 3]> = tri_flat.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+    Ok(Mesh::new(verts, triangles)?)
 }
 
 fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, ProtocolState, serde_json::Value), RunError> {
@@ -1624,10 +1671,7 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, Protocol
         return Err(RunError::Output(format!("checkpoint of a {kind} run, not capillary")));
     }
     let particles = particles_from_checkpoint(ck)?;
-    let verts = ck.vec3s("membrane_rest_vertices", None).map_err(bad)?;
-    let tri_flat = ck.u32s("membrane_triangles").map_err(bad)?;
-    let triangles: Vec<[u32; 3]> = tri_flat.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let rest = Mesh::new(verts, triangles)?;
+    let rest = rest_mesh_from_checkpoint(ck)?;
     let model = plan.model(&rest)?;
     let vertex_density = rest.vertices.len() as f64 / rest.area();
     let field = plan.field(vertex_density)?;
@@ -1940,14 +1984,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
         "mesh": run.mesh_info,
         "stages": stages,
         "driven": driven,
-        "crossings": {
-            "bounces": stats.bounces,
-            "checks": stats.checks,
-            "misplaced_total": stats.misplaced,
-            "misplaced_last_check": stats.misplaced_last,
-            "checked_last": stats.checked_last,
-            "note": "fluid particles found on the wrong side of the membrane by the inside test every model.crossing_check_every_steps steps (target 0)",
-        },
+        "crossings": crossings_json(stats),
         "performance": {
             "steps": steps,
             "stepping_seconds": secs,
@@ -1957,15 +1994,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
                 "steps": session_steps,
                 "seconds": session_s,
                 "steps_per_second": session_steps / session_s,
-                "share": {
-                    "fluid_pairs_and_integration": (session_s - known) / session_s,
-                    "bounce_back": timers.bounce_s / session_s,
-                    "membrane_forces": timers.membrane_forces_s / session_s,
-                    "walls": walls_s / session_s,
-                    "crossing_checks": timers.checks_s / session_s,
-                    "membrane_viscosity": timers.viscosity_s / session_s,
-                    "sampling_and_frames": run.output_s / session_s,
-                },
+                "share": step_shares(session_s, &timers, walls_s, run.output_s),
                 "note": "shares of this session's wall time (since the run started or resumed); the fluid's pair forces, the integrator and the cell lists are the remainder",
             },
         },

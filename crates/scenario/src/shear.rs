@@ -894,14 +894,8 @@ impl Stepper for Run<'_> {
         if let Some(w) = walls_ext {
             crate::channel::json_into_checkpoint(&mut ck, "walls_state_json", &w.inner.state())?;
         }
-        crate::channel::json_into_checkpoint(&mut ck, "cell_state_json", &cell.state())?;
         crate::channel::json_into_checkpoint(&mut ck, "progress_json", &self.st)?;
-        ck.insert_vec3("membrane_rest_vertices", &self.rest.vertices);
-        ck.insert_u32(
-            "membrane_triangles",
-            self.rest.triangles.iter().flatten().copied().collect(),
-        );
-        crate::channel::json_into_checkpoint(&mut ck, "mesh_info_json", &self.mesh_info)?;
+        crate::capillary::cell_into_checkpoint(&mut ck, cell, &self.rest, &self.mesh_info)?;
         ck.save_atomic(ctx.out_dir.join(CHECKPOINT_FILE)).map_err(out_err)
     }
 }
@@ -913,10 +907,7 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(ShearSim, Mesh, ShearState, 
         return Err(RunError::Output(format!("checkpoint of a {kind} run, not shear")));
     }
     let particles = particles_from_checkpoint(ck)?;
-    let verts = ck.vec3s("membrane_rest_vertices", None).map_err(bad)?;
-    let tri_flat = ck.u32s("membrane_triangles").map_err(bad)?;
-    let triangles: Vec<[u32; 3]> = tri_flat.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let rest = Mesh::new(verts, triangles)?;
+    let rest = crate::capillary::rest_mesh_from_checkpoint(ck)?;
     let model = membrane_model(&plan.s.cell, &plan.map, &rest)?;
     let vertex_density = rest.vertices.len() as f64 / rest.area();
     let field = cell_fluid_field(&plan.fluid, plan.viscosity_ratio(), vertex_density, plan.substeps)?;
@@ -1034,7 +1025,6 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let session_s = run.session_t0.elapsed().as_secs_f64().max(1e-9);
     let session_steps = (run.sim.step_count() - run.session_step0) as f64;
     let walls_s = run.sim.extension().0.as_ref().map(|w| w.seconds).unwrap_or(0.0);
-    let known = timers.bounce_s + timers.membrane_forces_s + timers.checks_s + walls_s + run.output_s;
     let sim_s = steps * plan.dt * t_s;
     Ok(json!({
         "unit_mapping": {
@@ -1075,13 +1065,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             plan.dt,
         ),
         "mesh": run.mesh_info,
-        "crossings": {
-            "bounces": stats.bounces,
-            "checks": stats.checks,
-            "misplaced_total": stats.misplaced,
-            "misplaced_last_check": stats.misplaced_last,
-            "checked_last": stats.checked_last,
-        },
+        "crossings": crate::capillary::crossings_json(stats),
         "performance": {
             "steps": steps,
             "stepping_seconds": secs,
@@ -1093,14 +1077,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
                 "steps": session_steps,
                 "seconds": session_s,
                 "steps_per_second": session_steps / session_s,
-                "share": {
-                    "fluid_pairs_and_integration": (session_s - known) / session_s,
-                    "bounce_back": timers.bounce_s / session_s,
-                    "membrane_forces": timers.membrane_forces_s / session_s,
-                    "walls": walls_s / session_s,
-                    "crossing_checks": timers.checks_s / session_s,
-                    "sampling_and_frames": run.output_s / session_s,
-                },
+                "share": crate::capillary::step_shares(session_s, &timers, walls_s, run.output_s),
             },
         },
         "files": { "time_series": "motion.csv", "trajectory": if plan.frame_every > 0 { json!(TRAJECTORY_FILE) } else { json!(null) } },
