@@ -1630,6 +1630,7 @@ pub(crate) fn step_shares(
     walls_s: f64,
     output_s: f64,
 ) -> serde_json::Value {
+    let known = timers.bounce_s + timers.membrane_forces_s + timers.checks_s + timers.viscosity_s + walls_s + output_s;
     json!({
         "fluid_pairs_and_integration": (session_s - known) / session_s,
         "bounce_back": timers.bounce_s / session_s,
@@ -1958,8 +1959,6 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let session_s = run.session_t0.elapsed().as_secs_f64().max(1e-9);
     let session_steps = (run.sim.step_count() - run.session_step0) as f64;
     let walls_s = run.sim.extension().0.seconds;
-    let known =
-        timers.bounce_s + timers.membrane_forces_s + timers.checks_s + timers.viscosity_s + walls_s + run.output_s;
     let visc = plan.membrane_viscosity();
     let visc_summary = membrane_viscosity_summary(
         plan.s.cell.membrane_viscosity_pa_s_m,
