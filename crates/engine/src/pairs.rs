@@ -380,6 +380,15 @@ fn gather<K: PairKernel, const V: bool, const ONE: bool>(
     sf: &mut [DVec3],
     le: bool,
 ) -> DMat3 {
+    per_layer(cl, sf, |z, off, w| {
+        gather_layer::<K, V, ONE>(cl, table, key, z, off, w, le)
+    })
+}
+
+/// Runs `task(z, offset, forces)` for every z-layer of cells in parallel, each on its own
+/// contiguous part of the sorted force array (starting at sorted index `offset`), and sums the
+/// returned virials in layer order (the same sum for any thread count).
+fn per_layer(cl: &CellList, sf: &mut [DVec3], task: impl Fn(usize, usize, &mut [DVec3]) -> DMat3 + Sync) -> DMat3 {
     let nz = cl.grid.n[2];
     let mut tasks = Vec::with_capacity(nz);
     let mut rest: &mut [DVec3] = sf;
@@ -391,10 +400,7 @@ fn gather<K: PairKernel, const V: bool, const ONE: bool>(
         rest = r;
         off = end;
     }
-    let out: Vec<DMat3> = tasks
-        .into_par_iter()
-        .map(|(z, off, w)| gather_layer::<K, V, ONE>(cl, table, key, z, off, w, le))
-        .collect();
+    let out: Vec<DMat3> = tasks.into_par_iter().map(|(z, off, w)| task(z, off, w)).collect();
     out.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
 }
 
@@ -480,22 +486,9 @@ fn shear_cross<K: PairKernel, const V: bool, const ONE: bool>(
     sf: &mut [DVec3],
     sh: ShearImages,
 ) -> DMat3 {
-    let nz = cl.grid.n[2];
-    let mut tasks = Vec::with_capacity(nz);
-    let mut rest: &mut [DVec3] = sf;
-    let mut off = 0;
-    for z in 0..nz {
-        let end = cl.layer_start(z + 1);
-        let (w, r) = rest.split_at_mut(end - off);
-        tasks.push((z, off, w));
-        rest = r;
-        off = end;
-    }
-    let out: Vec<DMat3> = tasks
-        .into_par_iter()
-        .map(|(z, off, w)| shear_cross_layer::<K, V, ONE>(cl, table, key, z, off, w, sh))
-        .collect();
-    out.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
+    per_layer(cl, sf, |z, off, w| {
+        shear_cross_layer::<K, V, ONE>(cl, table, key, z, off, w, sh)
+    })
 }
 
 fn shear_cross_layer<K: PairKernel, const V: bool, const ONE: bool>(
