@@ -4,7 +4,8 @@
 # tests/data: the tumbling → tank-treading transition stress per N against Fischer 2013 and
 # Abkarian 2007, f_TT/γ̇ against Fischer's cells at 28.9 mPa·s, the inclination against Fischer
 # 2015 at 23.9 mPa·s. Grids: N = 500 at 28.9 mPa·s (6 stresses, 36 strain units each), N = 1000
-# (3 stresses), N = 500 at 23.9 mPa·s (3 rates). About 80 minutes on 2 cores.
+# and N = 5000 (0.2 and 0.5 Pa, 30 strain units), N = 500 at 23.9 mPa·s (3 rates), N = 500 with
+# the membrane viscosity 6.3e-7 N·s/m (0.5 and 2 Pa). About 90 minutes on 2 otherwise idle cores.
 #   scripts/validate_shear.sh [SWEEP_DIR [FIG_DIR]]
 set -euo pipefail
 cd "$(dirname "$0")/.."

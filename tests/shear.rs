@@ -368,6 +368,21 @@ fn shear_validation_fig4() {
             ),
         ),
         (
+            5000,
+            "28.9",
+            false,
+            sweep_grid(
+                &dir,
+                "shear-n5000",
+                &[
+                    "cell.vertices=5000",
+                    "shear.duration_strain=30",
+                    "shear.analysis_start_strain=10",
+                ],
+                "shear.shear_stress_pa=0.2,0.5",
+            ),
+        ),
+        (
             500,
             "23.9",
             false,
@@ -457,7 +472,7 @@ fn shear_validation_fig4() {
         .3
         .iter()
         .map(|r| (false, r))
-        .chain(grids[3].3.iter().map(|r| (true, r)));
+        .chain(grids[4].3.iter().map(|r| (true, r)));
     for (visc, r) in tt_points.filter(|(_, r)| is_tt(r)) {
         let rate = f(&r["shear"]["shear_rate_per_s"]);
         let v = f(&r["motion"]["tank_treading_frequency_over_shear_rate"]);
@@ -492,7 +507,7 @@ fn shear_validation_fig4() {
     println!("\n| γ̇ (1/s) | model θ (°), N = 500, 23.9 mPa·s | class | Fischer 2015 cells within ±30 % of γ̇: mean ± sd (n) |");
     println!("|---|---|---|---|");
     let mut incl_pts = Vec::new();
-    for r in &grids[2].3 {
+    for r in &grids[3].3 {
         let rate = f(&r["shear"]["shear_rate_per_s"]);
         let th = f(&r["motion"]["mean_inclination_deg"]);
         let near: Vec<f64> = exp_incl
