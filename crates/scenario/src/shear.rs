@@ -967,6 +967,29 @@ fn motion_json(a: &MotionAnalysis, rate_si: f64, time_s: f64) -> serde_json::Val
     })
 }
 
+/// The membrane's mean rotation over the window, whatever the class: the least-squares slope of
+/// the tank-treading phase Φ(t) as a frequency (Hz, positive in the vorticity sense) and over
+/// γ̇. Defined even when the window is too short for a complete half revolution (the class is
+/// then Undetermined); for a tumbling cell it is the small residual rotation of the membrane
+/// relative to the body.
+fn membrane_rotation_json(window: &[FrameMotion], rate_si: f64, time_s: f64) -> serde_json::Value {
+    let n = window.len() as f64;
+    if n < 3.0 {
+        return serde_json::Value::Null;
+    }
+    let (st, sp) = window
+        .iter()
+        .fold((0.0, 0.0), |(a, b), m| (a + m.time, b + m.tt_phase_rad));
+    let (mt, mp) = (st / n, sp / n);
+    let (mut num, mut den) = (0.0, 0.0);
+    for m in window {
+        num += (m.time - mt) * (m.tt_phase_rad - mp);
+        den += (m.time - mt).powi(2);
+    }
+    let hz = -(num / den) / std::f64::consts::TAU / time_s;
+    json!({ "frequency_hz": hz, "over_shear_rate": hz / rate_si })
+}
+
 fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let plan = run.plan;
     let m = &plan.map;
@@ -1047,6 +1070,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             "measured_note": "least-squares slope dv_x/dy of the plasma particles, mean over the analysis window (the cell disturbs it locally)",
         },
         "motion": analysis,
+        "membrane_rotation": membrane_rotation_json(&window, rate_si, t_s),
         "cell": {
             "mean_taylor_deformation": mean(&|s| s.taylor_deformation),
             "max_abs_area_deviation": a_max,
