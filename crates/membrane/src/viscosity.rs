@@ -54,6 +54,17 @@ impl MembraneViscosity {
         }
     }
 
+    /// The central form for the 2D membrane viscosity `eta_m`: γ_T = 0, γ_C = 4 η_m/√3 (the
+    /// form Mirheo implements). It resists only the stretching rate of the links: a rigid
+    /// rotation of the membrane, or an out-of-plane relative motion of two linked vertices
+    /// (v_ij ⊥ link), is not damped; Fedosov's γ_T term damps both.
+    pub fn central_from_eta(eta_m: f64) -> Self {
+        MembraneViscosity {
+            gamma_t: 0.0,
+            gamma_c: 4.0 * eta_m / 3f64.sqrt(),
+        }
+    }
+
     /// The 2D membrane viscosity η_m = √3 γ_T + √3 γ_C / 4.
     pub fn eta(&self) -> f64 {
         3f64.sqrt() * (self.gamma_t + 0.25 * self.gamma_c)

@@ -195,6 +195,21 @@ pub struct CellSection {
     /// physiological ≈ 5e-7–1e-6). Fedosov's link friction with γ_C = γ_T/3 (docs/model.md).
     #[serde(default)]
     pub membrane_viscosity_pa_s_m: f64,
+    /// How η_m becomes link friction: "fedosov" (default: γ_C = γ_T/3) or "central" (γ_T = 0,
+    /// γ_C = 4η_m/√3: resists only the links' stretching, not rigid rotation or bending).
+    #[serde(default)]
+    pub membrane_viscosity_form: ViscosityForm,
+}
+
+/// How the membrane viscosity η_m is split into link friction (docs/model.md §7b).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ViscosityForm {
+    /// Fedosov et al. 2010: γ_C = γ_T/3 (the relative velocity's whole vector is damped).
+    #[default]
+    Fedosov,
+    /// γ_T = 0, γ_C = 4η_m/√3 (Mirheo's form: only the component along the link is damped).
+    Central,
 }
 
 /// `[model]`: how SI maps onto the DPD model (docs/units.md).
@@ -895,7 +910,13 @@ impl<'a> Plan<'a> {
 /// The membrane viscosity of a `[cell]` section in model units (None when 0: the paper's model).
 pub(crate) fn cell_membrane_viscosity(cell: &CellSection, map: &UnitMapping) -> Option<MembraneViscosity> {
     let eta = cell.membrane_viscosity_pa_s_m;
-    (eta > 0.0).then(|| MembraneViscosity::from_eta(map.membrane_viscosity_to_model(eta)))
+    (eta > 0.0).then(|| {
+        let eta_model = map.membrane_viscosity_to_model(eta);
+        match cell.membrane_viscosity_form {
+            ViscosityForm::Fedosov => MembraneViscosity::from_eta(eta_model),
+            ViscosityForm::Central => MembraneViscosity::central_from_eta(eta_model),
+        }
+    })
 }
 
 /// Mass of a membrane vertex (model units; the fluid's).

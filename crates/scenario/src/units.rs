@@ -753,8 +753,11 @@ pub fn explain(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> Str
         );
         let _ = writeln!(
             s,
-            "    {:<24} γ_T = {:.4}, γ_C = γ_T/3 = {:.4} (model; Shardlow sweep, exact per link)",
-            "  link friction", visc.gamma_t, visc.gamma_c
+            "    {:<24} \"fedosov\": γ_T = {:.4}, γ_C = γ_T/3 = {:.4}; \"central\": γ_C = 4η_m/√3 = {:.4} (model; Shardlow sweep, exact per link)",
+            "  link friction",
+            visc.gamma_t,
+            visc.gamma_c,
+            4.0 * v.membrane_viscosity / 3f64.sqrt()
         );
     } else {
         let _ = writeln!(s, "    {:<24} 0 (off: the paper's model)", "membrane viscosity η_m");
