@@ -445,19 +445,9 @@ pub(crate) fn thermal_choice(setting: &ThermalSetting, max_mach: f64) -> Thermal
 
 /// Validates a `[cell]` section (shared by the kinds with a cell in flow).
 pub(crate) fn validate_cell(cell: &CellSection, file: &str) -> Result<(), ScenarioError> {
-    let fail = |key: &str, value: String, allowed: &str| ScenarioError::Value {
-        file: file.into(),
-        key: key.into(),
-        value,
-        allowed: allowed.into(),
-    };
-    let range = |key: &str, v: f64, lo: f64, hi: f64, allowed: &str| {
-        if v.is_finite() && v >= lo && v <= hi {
-            Ok(())
-        } else {
-            Err(fail(key, format!("{v}"), allowed))
-        }
-    };
+    let c = crate::file::Check { file };
+    let fail = |key: &str, value: String, allowed: &str| c.fail(key, value, allowed);
+    let range = |key: &str, v: f64, lo: f64, hi: f64, allowed: &str| c.range(key, v, lo, hi, allowed);
     if cell.vertices < 100 || cell.vertices > 50_000 {
         return Err(fail(
             "cell.vertices",
@@ -590,19 +580,9 @@ pub(crate) fn membrane_viscosity_summary(
 }
 
 pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> {
-    let fail = |key: &str, value: String, allowed: &str| ScenarioError::Value {
-        file: file.into(),
-        key: key.into(),
-        value,
-        allowed: allowed.into(),
-    };
-    let range = |key: &str, v: f64, lo: f64, hi: f64, allowed: &str| {
-        if v.is_finite() && v >= lo && v <= hi {
-            Ok(())
-        } else {
-            Err(fail(key, format!("{v}"), allowed))
-        }
-    };
+    let c = crate::file::Check { file };
+    let fail = |key: &str, value: String, allowed: &str| c.fail(key, value, allowed);
+    let range = |key: &str, v: f64, lo: f64, hi: f64, allowed: &str| c.range(key, v, lo, hi, allowed);
     range("tube.diameter_um", s.tube.diameter_um, 3.0, 100.0, "3–100 µm")?;
     range("tube.length_um", s.tube.length_um, 10.0, 1000.0, "10–1000 µm")?;
     range(

@@ -339,19 +339,9 @@ impl ShearScenario {
 
 /// Validates a `kind = "shear"` scenario, the unit mapping included, before any work.
 pub fn validate(s: &ShearScenario, file: &str) -> Result<(), ScenarioError> {
-    let fail = |key: &str, value: String, allowed: &str| ScenarioError::Value {
-        file: file.into(),
-        key: key.into(),
-        value,
-        allowed: allowed.into(),
-    };
-    let range = |key: &str, v: f64, lo: f64, hi: f64, allowed: &str| {
-        if v.is_finite() && v >= lo && v <= hi {
-            Ok(())
-        } else {
-            Err(fail(key, format!("{v}"), allowed))
-        }
-    };
+    let c = crate::file::Check { file };
+    let fail = |key: &str, value: String, allowed: &str| c.fail(key, value, allowed);
+    let range = |key: &str, v: f64, lo: f64, hi: f64, allowed: &str| c.range(key, v, lo, hi, allowed);
     let sh = &s.shear;
     match (sh.shear_rate_per_s, sh.shear_stress_pa) {
         (Some(r), None) => range("shear.shear_rate_per_s", r, 1e-3, 1e5, "1e-3–1e5 1/s")?,
