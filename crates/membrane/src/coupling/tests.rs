@@ -71,6 +71,22 @@ fn momentum(p: &Particles) -> DVec3 {
     p.vel.iter().fold(DVec3::ZERO, |a, v| a + *v) // every mass is 1
 }
 
+/// The particles of `fluid` typed inner or outer by the closed `mesh` (same ids), each velocity
+/// plus `flow`, with room for the mesh's vertices after them.
+fn split_fluid(mesh: &Mesh, fluid: &Particles, flow: DVec3) -> Particles {
+    let mut p = Particles::with_capacity(fluid.len() + mesh.vertices.len());
+    for i in 0..fluid.len() {
+        let x = fluid.pos[i];
+        let t = if crate::mesh::contains(x, &mesh.vertices, &mesh.triangles) {
+            INNER
+        } else {
+            OUTER
+        };
+        p.push(x, fluid.vel[i] + flow, t, i as u32);
+    }
+    p
+}
+
 fn momentum_scale(p: &Particles) -> f64 {
     p.vel.iter().map(|v| v.length()).sum()
 }
@@ -178,16 +194,7 @@ fn moving_cell_with(
     };
     let box_ = PeriodicBox::new(config.box_lengths).unwrap();
     let fluid_p = init::fluid(&config, &ForceField::single(fluid), &init::FluidSpec::standard(), 4).unwrap();
-    let mut p = Particles::with_capacity(fluid_p.len() + mesh.vertices.len());
-    for i in 0..fluid_p.len() {
-        let x = fluid_p.pos[i];
-        let t = if crate::mesh::contains(x, &mesh.vertices, &mesh.triangles) {
-            INNER
-        } else {
-            OUTER
-        };
-        p.push(x, fluid_p.vel[i] + flow, t, i as u32);
-    }
+    let mut p = split_fluid(&mesh, &fluid_p, flow);
     let first = p.len();
     let omega = if flow == DVec3::ZERO {
         DVec3::new(0.0, 0.0, 0.8)
@@ -649,41 +656,7 @@ fn membrane_viscosity_is_deterministic_across_threads() {
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
-            let l = 12.0;
-            let centre = DVec3::splat(l / 2.0);
-            let (mesh, model) = cell_mesh(300, centre);
-            let config = SimConfig::new(DVec3::splat(l), 0.002, 9);
-            let fluid = PairParams::groot_warren();
-            let f = field(fluid, 4.5);
-            let fluid_p = init::fluid(&config, &ForceField::single(fluid), &init::FluidSpec::standard(), 4).unwrap();
-            let mut p = Particles::with_capacity(fluid_p.len() + mesh.vertices.len());
-            for i in 0..fluid_p.len() {
-                let x = fluid_p.pos[i];
-                let t = if crate::mesh::contains(x, &mesh.vertices, &mesh.triangles) {
-                    INNER
-                } else {
-                    OUTER
-                };
-                p.push(x, fluid_p.vel[i], t, i as u32);
-            }
-            let first = p.len();
-            for (k, v) in mesh.vertices.iter().enumerate() {
-                p.push(*v, DVec3::new(0.3, 0.0, 0.0), MEMBRANE, (first + k) as u32);
-            }
-            let cfg = CellConfig {
-                first,
-                outer_type: OUTER,
-                inner_type: INNER,
-                check_every: 50,
-                wall: None,
-                reflection: MembraneReflection::Maxwell,
-                kbt: 1.0,
-                seed: 3,
-                substeps: 1,
-                viscosity: Some(MembraneViscosity::from_eta(2000.0)),
-            };
-            let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
-            let mut sim = Simulation::with_extension(config, f, p, cell).unwrap();
+            let mut sim = cell_in_fluid(1, Some(MembraneViscosity::from_eta(2000.0)), 9);
             sim.run(300).unwrap();
             let pt = sim.particles();
             (pt.pos.clone(), pt.vel.clone(), sim.extension().stats().clone())
@@ -843,16 +816,7 @@ fn cell_in_fluid(substeps: u32, viscosity: Option<MembraneViscosity>, seed: u64)
         field(fluid, 4.5)
     };
     let fluid_p = init::fluid(&config, &ForceField::single(fluid), &init::FluidSpec::standard(), seed).unwrap();
-    let mut p = Particles::with_capacity(fluid_p.len() + mesh.vertices.len());
-    for i in 0..fluid_p.len() {
-        let x = fluid_p.pos[i];
-        let t = if crate::mesh::contains(x, &mesh.vertices, &mesh.triangles) {
-            INNER
-        } else {
-            OUTER
-        };
-        p.push(x, fluid_p.vel[i], t, i as u32);
-    }
+    let mut p = split_fluid(&mesh, &fluid_p, DVec3::ZERO);
     let first = p.len();
     for (k, v) in mesh.vertices.iter().enumerate() {
         p.push(*v, DVec3::new(0.3, 0.0, 0.0), MEMBRANE, (first + k) as u32);
