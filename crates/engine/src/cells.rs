@@ -10,6 +10,9 @@ use rayon::prelude::*;
 
 use crate::{EngineError, PeriodicBox, Real};
 
+/// Entries past the last particle in the padded sorted arrays (≥ the pair loop's lanes − 1).
+pub const PAD: usize = 8;
+
 /// Smallest chunk of particles a rayon task gets in the O(N) passes.
 pub(crate) const MIN_LEN: usize = 4096;
 
@@ -126,7 +129,14 @@ pub struct CellList {
     pub pos: Vec<DVec3>,
     /// Sorted velocities used by the dissipative force (the predicted velocities).
     pub vel: Vec<DVec3>,
-    /// Sorted types.
+    /// Sorted positions as structure of arrays, for the vectorised distance test; each is
+    /// padded with [`PAD`] zeros past the last particle so a chunk of lanes may read past a range.
+    pub px: Vec<Real>,
+    /// See [`CellList::px`].
+    pub py: Vec<Real>,
+    /// See [`CellList::px`].
+    pub pz: Vec<Real>,
+    /// Sorted types (padded like [`CellList::px`], with type 0).
     pub ptype: Vec<u16>,
     /// Sorted ids.
     pub id: Vec<u32>,
@@ -142,6 +152,9 @@ impl CellList {
             start: vec![0; grid.ncells() + 1],
             perm: Vec::new(),
             pos: Vec::new(),
+            px: Vec::new(),
+            py: Vec::new(),
+            pz: Vec::new(),
             vel: Vec::new(),
             ptype: Vec::new(),
             id: Vec::new(),
@@ -184,19 +197,29 @@ impl CellList {
         }
         self.pos.resize(n, DVec3::ZERO);
         self.vel.resize(n, DVec3::ZERO);
-        self.ptype.resize(n, 0);
         self.id.resize(n, 0);
+        for a in [&mut self.px, &mut self.py, &mut self.pz] {
+            a.resize(n + PAD, 0.0);
+            a[n..].fill(0.0);
+        }
+        self.ptype.resize(n + PAD, 0);
+        self.ptype[n..].fill(0);
         let perm = &self.perm;
         self.pos
             .par_iter_mut()
+            .zip(self.px[..n].par_iter_mut())
+            .zip(self.py[..n].par_iter_mut())
+            .zip(self.pz[..n].par_iter_mut())
             .zip(self.vel.par_iter_mut())
-            .zip(self.ptype.par_iter_mut())
+            .zip(self.ptype[..n].par_iter_mut())
             .zip(self.id.par_iter_mut())
             .zip(perm.par_iter())
             .with_min_len(MIN_LEN)
-            .for_each(|((((x, v), t), d), &i)| {
+            .for_each(|(((((((x, px), py), pz), v), t), d), &i)| {
                 let i = i as usize;
-                *x = pos[i];
+                let p = pos[i];
+                *x = p;
+                (*px, *py, *pz) = (p.x, p.y, p.z);
                 *v = vel_of(i);
                 *t = ptype[i];
                 *d = id[i];

@@ -17,6 +17,9 @@ pub trait PairKernel: Copy + Send + Sync + 'static {
     /// `dv = v_i − v_j` (the predicted velocities), `xi` the pair's symmetric random number.
     /// Must be odd in (dr, dv) for fixed `xi` so that Newton's third law holds exactly.
     fn force(&self, dr: DVec3, r2: Real, dv: DVec3, xi: Real) -> DVec3;
+    /// Whether the random force is on (σ ≠ 0 and the pair enabled). When no pair of a table is
+    /// noisy (zero temperature) the loops pass ξ = 0 and compute no hash.
+    fn noisy(&self) -> bool;
 }
 
 /// Groot–Warren DPD with w^R = 1 − r/rc (s = 1): the specialised common case (no `powf`).
@@ -48,6 +51,10 @@ impl PairKernel for DpdLinear {
     #[inline(always)]
     fn cutoff2(&self) -> Real {
         self.rc2
+    }
+
+    fn noisy(&self) -> bool {
+        self.rc2 > 0.0 && self.sigma_dt != 0.0
     }
 
     #[inline(always)]
@@ -95,6 +102,10 @@ impl PairKernel for DpdGeneral {
         self.rc2
     }
 
+    fn noisy(&self) -> bool {
+        self.rc2 > 0.0 && self.sigma_dt != 0.0
+    }
+
     #[inline(always)]
     fn force(&self, dr: DVec3, r2: Real, dv: DVec3, xi: Real) -> DVec3 {
         let r = r2.sqrt();
@@ -112,6 +123,8 @@ impl PairKernel for DpdGeneral {
 pub struct KernelTable<K> {
     nt: usize,
     k: Vec<K>,
+    /// `k[..].cutoff2()`, same layout.
+    rc2: Vec<Real>,
 }
 
 impl<K: PairKernel> KernelTable<K> {
@@ -123,7 +136,8 @@ impl<K: PairKernel> KernelTable<K> {
                 k.push(f(i, j));
             }
         }
-        Self { nt, k }
+        let rc2 = k.iter().map(|k| k.cutoff2()).collect();
+        Self { nt, k, rc2 }
     }
 
     /// Number of types.
@@ -136,6 +150,12 @@ impl<K: PairKernel> KernelTable<K> {
     #[inline(always)]
     pub fn get(&self, i: usize, j: usize) -> K {
         self.k[i * self.nt + j]
+    }
+
+    /// Squared cutoffs of row i.
+    #[inline(always)]
+    pub fn cutoff2_row(&self, i: usize) -> &[Real] {
+        &self.rc2[i * self.nt..(i + 1) * self.nt]
     }
 
     /// Row i (kernels of (i, 0..nt)).

@@ -46,6 +46,7 @@ pub mod params;
 pub mod particles;
 pub mod rng;
 pub mod sim;
+mod simd;
 pub mod walls;
 
 /// The floating-point type of the engine.

@@ -22,6 +22,7 @@ use rayon::prelude::*;
 use crate::cells::CellList;
 use crate::kernel::{KernelTable, PairKernel};
 use crate::rng::pair_xi;
+use crate::simd;
 use crate::{ForceScheme, Real};
 
 /// What the pair loop needs of Lees–Edwards boundaries (see [`crate::PeriodicBox`]).
@@ -62,78 +63,149 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
     DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
-/// A candidate pair that passed the distance test: sorted index j, separation, r².
-#[derive(Clone, Copy, Default)]
-struct Hit {
-    dr: DVec3,
-    r2: f64,
-    j: u32,
+/// Lanes of the distance test: candidates are tested `LANES` at a time on the structure-of-arrays
+/// positions (the sorted arrays are padded so a chunk may read past the end of a range).
+pub(crate) const LANES: usize = 4;
+const _: () = assert!(crate::cells::PAD + 1 >= LANES);
+
+/// Where the distance test reads its candidates: padded structure-of-arrays positions and types,
+/// and the sorted index of each candidate (`ids`; None: the position index itself).
+#[derive(Clone, Copy)]
+struct Src<'a> {
+    px: &'a [Real],
+    py: &'a [Real],
+    pz: &'a [Real],
+    ptype: &'a [u16],
+    ids: Option<&'a [u32]>,
 }
 
-/// The hits of one particle i.
+impl<'a> Src<'a> {
+    fn sorted(cl: &'a CellList) -> Self {
+        Self {
+            px: &cl.px,
+            py: &cl.py,
+            pz: &cl.pz,
+            ptype: &cl.ptype,
+            ids: None,
+        }
+    }
+}
+
+/// The candidates of one particle i that passed the distance test: `h.j[..n]` (sorted indices)
+/// with their separations `h.dx, h.dy, h.dz` and `h.r2`.
 #[derive(Default)]
 struct Hits {
-    h: Vec<Hit>,
+    h: simd::HitArrays,
     n: usize,
 }
 
 impl Hits {
-    /// Makes room for `m` candidates (the branch-free append writes one slot past the last hit).
+    /// Makes room for `m` candidates (an append writes up to a chunk past the last hit).
     #[inline]
     fn reserve(&mut self, m: usize) {
-        if self.h.len() < m + 1 {
-            self.h.resize(m + 1, Hit::default());
-        }
+        self.h.reserve(m + LANES);
     }
 
-    /// Distance test of i against sorted particles `a..e`, appended without a data-dependent
-    /// branch (the cutoff test is ~30% true and would mispredict a lot). `sep(j)` gives
-    /// x_i − x_j for the right periodic image.
+    /// Separation and r² of hit k.
     #[inline(always)]
-    fn scan<K: PairKernel, const ONE: bool>(
+    fn get(&self, k: usize) -> (usize, DVec3, Real) {
+        let h = &self.h;
+        (h.j[k] as usize, DVec3::new(h.dx[k], h.dy[k], h.dz[k]), h.r2[k])
+    }
+
+    /// Distance test of i against sorted particles `a..e`, `LANES` candidates at a time, appended
+    /// without a data-dependent branch (the cutoff test is ~30% true and would mispredict a lot).
+    /// The separation is `p − x_j` (`POST = false`, `p` already shifted) or `(p − x_j) − sh`
+    /// (`POST = true`), component by component, and r² = (dx² + dy²) + dz² as `DVec3::dot`.
+    #[inline(always)]
+    fn scan<K: PairKernel, const ONE: bool, const POST: bool>(
         &mut self,
         row: &[K],
-        cl: &CellList,
+        rc2_row: &[Real],
+        src: Src<'_>,
+        simd: bool,
         a: usize,
         e: usize,
-        sep: impl Fn(DVec3) -> DVec3,
+        p: DVec3,
+        sh: DVec3,
     ) {
+        #[cfg(target_arch = "x86_64")]
+        if simd {
+            let cutoff = if ONE {
+                simd::Cutoff::One(rc2_row[0])
+            } else {
+                simd::Cutoff::PerType {
+                    ptype: src.ptype,
+                    table: rc2_row,
+                }
+            };
+            // SAFETY: `simd` is true only when the CPU reports AVX2 (`Run::simd_available`), and
+            // then this is compiled into the `*_avx2` builds of the tasks (inline(always) all the
+            // way up), which enable AVX2.
+            #[allow(unsafe_code)]
+            let n = unsafe {
+                simd::scan_avx2::<POST>(
+                    [src.px, src.py, src.pz],
+                    cutoff,
+                    a,
+                    e,
+                    p.to_array(),
+                    sh.to_array(),
+                    src.ids,
+                    &mut self.h,
+                    self.n,
+                )
+            };
+            self.n = n;
+            return;
+        }
+        let _ = (simd, rc2_row);
         let mut n = self.n;
         let rc2_one = row[0].cutoff2();
-        let h = &mut self.h[..];
-        for (j, pj) in cl.pos[a..e].iter().enumerate() {
-            let dr = sep(*pj);
-            let r2 = dr.length_squared();
+        let h = &mut self.h;
+        for j in a..e {
+            let (dx, dy, dz) = if POST {
+                (
+                    (p.x - src.px[j]) - sh.x,
+                    (p.y - src.py[j]) - sh.y,
+                    (p.z - src.pz[j]) - sh.z,
+                )
+            } else {
+                (p.x - src.px[j], p.y - src.py[j], p.z - src.pz[j])
+            };
+            let r2 = dx * dx + dy * dy + dz * dz;
             let rc2 = if ONE {
                 rc2_one
             } else {
-                row[cl.ptype[a + j] as usize].cutoff2()
+                row[src.ptype[j] as usize].cutoff2()
             };
-            h[n] = Hit {
-                dr,
-                r2,
-                j: (a + j) as u32,
+            let id = match src.ids {
+                None => j as u32,
+                Some(ids) => ids[j],
             };
+            (h.j[n], h.dx[n], h.dy[n], h.dz[n], h.r2[n]) = (id, dx, dy, dz, r2);
             n += ((r2 < rc2) & (r2 > 0.0)) as usize;
         }
         self.n = n;
     }
 }
 
-/// Force from the k-th hit on i.
+/// Force on i from sorted particle j at separation `dr` (r² = `r2`); `dv_shift` is subtracted from the
+/// velocity difference (the Lees–Edwards image velocity; zero otherwise).
 #[inline(always)]
-fn hit_force<K: PairKernel, const ONE: bool>(
+fn pair_force<K: PairKernel, const ONE: bool>(
     row: &[K],
     cl: &CellList,
     key: u64,
+    noise: bool,
     vi: DVec3,
     idi: u32,
-    h: Hit,
-) -> (usize, DVec3, DVec3) {
-    let j = h.j as usize;
+    (j, dr, r2): (usize, DVec3, Real),
+    dv_shift: DVec3,
+) -> DVec3 {
     let kern = if ONE { row[0] } else { row[cl.ptype[j] as usize] };
-    let xi = pair_xi(key, idi, cl.id[j]);
-    (j, h.dr, kern.force(h.dr, h.r2, vi - cl.vel[j], xi))
+    let xi = if noise { pair_xi(key, idi, cl.id[j]) } else { 0.0 };
+    kern.force(dr, r2, (vi - cl.vel[j]) - dv_shift, xi)
 }
 
 /// Appends the neighbour cell range `(a, e, shift)` to `nb[..*len]`, merging it into the previous
@@ -155,6 +227,30 @@ fn push_range(nb: &mut [(usize, usize, DVec3)], len: &mut usize, a: usize, e: us
     *len += 1;
 }
 
+/// What every pair task needs besides the particles and kernels.
+#[derive(Clone, Copy, Debug)]
+struct Run {
+    /// Noise key of this force evaluation ([`crate::rng::step_key`]).
+    key: u64,
+    /// Whether any pair has a random force (false at zero temperature: no hash is computed).
+    noise: bool,
+    /// Whether the tasks may run their AVX2 build (detected at run time).
+    simd: bool,
+}
+
+impl Run {
+    fn simd_available() -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            std::arch::is_x86_feature_detected!("avx2")
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            false
+        }
+    }
+}
+
 /// Computes the pair forces of the cell-sorted particles into `sf` (sorted order, overwritten)
 /// and returns the pair virial Σ_pairs r_ij ⊗ f_ij (zero unless `virial`). `shear` gives the
 /// Lees–Edwards images of a sheared box (None: ordinary periodic boundaries).
@@ -171,24 +267,29 @@ pub fn compute<K: PairKernel>(
     sf.resize(cl.pos.len(), DVec3::ZERO);
     let one = table.ntypes() == 1;
     let le = shear.is_some();
+    let run = Run {
+        key,
+        noise: (0..table.ntypes()).any(|i| table.row(i).iter().any(|k| k.noisy())),
+        simd: Run::simd_available(),
+    };
     let w = match (scheme, virial, one) {
-        (ForceScheme::HalfShell, false, false) => half_shell::<K, false, false>(cl, table, key, sf, le),
-        (ForceScheme::HalfShell, false, true) => half_shell::<K, false, true>(cl, table, key, sf, le),
-        (ForceScheme::HalfShell, true, false) => half_shell::<K, true, false>(cl, table, key, sf, le),
-        (ForceScheme::HalfShell, true, true) => half_shell::<K, true, true>(cl, table, key, sf, le),
-        (ForceScheme::Gather, false, false) => gather::<K, false, false>(cl, table, key, sf, le),
-        (ForceScheme::Gather, false, true) => gather::<K, false, true>(cl, table, key, sf, le),
-        (ForceScheme::Gather, true, false) => gather::<K, true, false>(cl, table, key, sf, le),
-        (ForceScheme::Gather, true, true) => gather::<K, true, true>(cl, table, key, sf, le),
+        (ForceScheme::HalfShell, false, false) => half_shell::<K, false, false>(cl, table, run, sf, le),
+        (ForceScheme::HalfShell, false, true) => half_shell::<K, false, true>(cl, table, run, sf, le),
+        (ForceScheme::HalfShell, true, false) => half_shell::<K, true, false>(cl, table, run, sf, le),
+        (ForceScheme::HalfShell, true, true) => half_shell::<K, true, true>(cl, table, run, sf, le),
+        (ForceScheme::Gather, false, false) => gather::<K, false, false>(cl, table, run, sf, le),
+        (ForceScheme::Gather, false, true) => gather::<K, false, true>(cl, table, run, sf, le),
+        (ForceScheme::Gather, true, false) => gather::<K, true, false>(cl, table, run, sf, le),
+        (ForceScheme::Gather, true, true) => gather::<K, true, true>(cl, table, run, sf, le),
     };
     match shear {
         None => w,
         Some(sh) => {
             w + match (virial, one) {
-                (false, false) => shear_cross::<K, false, false>(cl, table, key, sf, sh),
-                (false, true) => shear_cross::<K, false, true>(cl, table, key, sf, sh),
-                (true, false) => shear_cross::<K, true, false>(cl, table, key, sf, sh),
-                (true, true) => shear_cross::<K, true, true>(cl, table, key, sf, sh),
+                (false, false) => shear_cross::<K, false, false>(cl, table, run, sf, sh),
+                (false, true) => shear_cross::<K, false, true>(cl, table, run, sf, sh),
+                (true, false) => shear_cross::<K, true, false>(cl, table, run, sf, sh),
+                (true, true) => shear_cross::<K, true, true>(cl, table, run, sf, sh),
             }
         }
     }
@@ -224,7 +325,7 @@ impl Win<'_> {
 fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
     table: &KernelTable<K>,
-    key: u64,
+    run: Run,
     sf: &mut [DVec3],
     le: bool,
 ) -> DMat3 {
@@ -259,7 +360,7 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
         }
         let out: Vec<(usize, DMat3)> = tasks
             .into_par_iter()
-            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, key, layers(s), &mut w, le)))
+            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, run, layers(s), &mut w, le)))
             .collect();
         for (s, m) in out {
             vir[s] = m;
@@ -296,7 +397,7 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
         }
         let out: Vec<(usize, DMat3)> = tasks
             .into_par_iter()
-            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, key, layers(s), &mut w, le)))
+            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, run, layers(s), &mut w, le)))
             .collect();
         for (s, m) in out {
             vir[s] = m;
@@ -305,10 +406,43 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
     vir.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
 }
 
+/// Runs [`slab_body`], in its AVX2 build when the CPU has it (the results are the same bit for
+/// bit: no floating-point contraction or reordering is allowed either way).
+#[allow(unsafe_code)]
 fn slab<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
     table: &KernelTable<K>,
-    key: u64,
+    run: Run,
+    zz: (usize, usize),
+    win: &mut Win<'_>,
+    le: bool,
+) -> DMat3 {
+    #[cfg(target_arch = "x86_64")]
+    if run.simd {
+        // SAFETY: `run.simd` is true only when the CPU reports AVX2 (`Run::simd_available`).
+        return unsafe { slab_avx2::<K, V, ONE>(cl, table, run, zz, win, le) };
+    }
+    slab_body::<K, V, ONE>(cl, table, run, zz, win, le)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn slab_avx2<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    run: Run,
+    zz: (usize, usize),
+    win: &mut Win<'_>,
+    le: bool,
+) -> DMat3 {
+    slab_body::<K, V, ONE>(cl, table, run, zz, win, le)
+}
+
+#[inline(always)]
+fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    run: Run,
     (z0, z1): (usize, usize),
     win: &mut Win<'_>,
     le: bool,
@@ -336,29 +470,28 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
                     push_range(&mut nb, &mut nnb, a, e, sh);
                     m += e - a;
                 }
+                let src = Src::sorted(cl);
                 hits.reserve(m);
                 for i in s0..s1 {
                     let pi = cl.pos[i];
                     let vi = cl.vel[i];
                     let idi = cl.id[i];
-                    let row = if ONE {
-                        table.row(0)
-                    } else {
-                        table.row(cl.ptype[i] as usize)
-                    };
+                    let ti = if ONE { 0 } else { cl.ptype[i] as usize };
+                    let (row, rc2_row) = (table.row(ti), table.cutoff2_row(ti));
+                    // The cell's own later particles, then the neighbour ranges, in visiting order.
                     hits.n = 0;
-                    hits.scan::<K, ONE>(row, cl, i + 1, s1, |pj| pi - pj);
+                    hits.scan::<K, ONE, false>(row, rc2_row, src, run.simd, i + 1, s1, pi, DVec3::ZERO);
                     for &(a, e, sh) in &nb[..nnb] {
-                        let pis = pi - sh;
-                        hits.scan::<K, ONE>(row, cl, a, e, |pj| pis - pj);
+                        hits.scan::<K, ONE, false>(row, rc2_row, src, run.simd, a, e, pi - sh, DVec3::ZERO);
                     }
                     let mut fi = DVec3::ZERO;
-                    for &h in &hits.h[..hits.n] {
-                        let (j, dr, f) = hit_force::<K, ONE>(row, cl, key, vi, idi, h);
+                    for k in 0..hits.n {
+                        let hit = hits.get(k);
+                        let f = pair_force::<K, ONE>(row, cl, run.key, run.noise, vi, idi, hit, DVec3::ZERO);
                         fi += f;
-                        win.add(j, -f);
+                        win.add(hit.0, -f);
                         if V {
-                            vir += outer(dr, f);
+                            vir += outer(hit.1, f);
                         }
                     }
                     win.add(i, fi);
@@ -376,12 +509,12 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
 fn gather<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
     table: &KernelTable<K>,
-    key: u64,
+    run: Run,
     sf: &mut [DVec3],
     le: bool,
 ) -> DMat3 {
     per_layer(cl, sf, |z, off, w| {
-        gather_layer::<K, V, ONE>(cl, table, key, z, off, w, le)
+        gather_layer::<K, V, ONE>(cl, table, run, z, off, w, le)
     })
 }
 
@@ -404,10 +537,45 @@ fn per_layer(cl: &CellList, sf: &mut [DVec3], task: impl Fn(usize, usize, &mut [
     out.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
 }
 
+/// Runs [`gather_layer_body`], in its AVX2 build when the CPU has it (the results are the same bit for
+/// bit: no floating-point contraction or reordering is allowed either way).
+#[allow(unsafe_code)]
 fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
     table: &KernelTable<K>,
-    key: u64,
+    run: Run,
+    z: usize,
+    off: usize,
+    out: &mut [DVec3],
+    le: bool,
+) -> DMat3 {
+    #[cfg(target_arch = "x86_64")]
+    if run.simd {
+        // SAFETY: `run.simd` is true only when the CPU reports AVX2 (`Run::simd_available`).
+        return unsafe { gather_layer_avx2::<K, V, ONE>(cl, table, run, z, off, out, le) };
+    }
+    gather_layer_body::<K, V, ONE>(cl, table, run, z, off, out, le)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn gather_layer_avx2<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    run: Run,
+    z: usize,
+    off: usize,
+    out: &mut [DVec3],
+    le: bool,
+) -> DMat3 {
+    gather_layer_body::<K, V, ONE>(cl, table, run, z, off, out, le)
+}
+
+#[inline(always)]
+fn gather_layer_body<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    run: Run,
     z: usize,
     off: usize,
     out: &mut [DVec3],
@@ -444,28 +612,21 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
                 let pi = cl.pos[i];
                 let vi = cl.vel[i];
                 let idi = cl.id[i];
-                let row = if ONE {
-                    table.row(0)
-                } else {
-                    table.row(cl.ptype[i] as usize)
-                };
+                let ti = if ONE { 0 } else { cl.ptype[i] as usize };
+                let (row, rc2_row) = (table.row(ti), table.cutoff2_row(ti));
+                // dr = (x_i − x_j) − shift is exactly the negative of what j computes for i
+                // (j == i gives r² = 0 and is skipped), so Newton's third law holds bit for bit.
                 hits.n = 0;
                 for &(a, e, sh) in &nb[..nnb] {
-                    if sh == DVec3::ZERO {
-                        // j == i gives r² = 0 and is skipped.
-                        hits.scan::<K, ONE>(row, cl, a, e, |pj| pi - pj);
-                    } else {
-                        // Across the boundary: dr = (x_i − x_j) − shift is exactly the negative
-                        // of what j computes for i, so Newton's third law holds bit for bit.
-                        hits.scan::<K, ONE>(row, cl, a, e, |pj| (pi - pj) - sh);
-                    }
+                    hits.scan::<K, ONE, true>(row, rc2_row, Src::sorted(cl), run.simd, a, e, pi, sh);
                 }
                 let mut fi = DVec3::ZERO;
-                for &h in &hits.h[..hits.n] {
-                    let (_, dr, f) = hit_force::<K, ONE>(row, cl, key, vi, idi, h);
+                for k in 0..hits.n {
+                    let hit = hits.get(k);
+                    let f = pair_force::<K, ONE>(row, cl, run.key, run.noise, vi, idi, hit, DVec3::ZERO);
                     fi += f;
                     if V {
-                        vir += outer(dr, f * 0.5);
+                        vir += outer(hit.1, f * 0.5);
                     }
                 }
                 out[i - off] = fi;
@@ -482,19 +643,54 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
 fn shear_cross<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
     table: &KernelTable<K>,
-    key: u64,
+    run: Run,
     sf: &mut [DVec3],
     sh: ShearImages,
 ) -> DMat3 {
     per_layer(cl, sf, |z, off, w| {
-        shear_cross_layer::<K, V, ONE>(cl, table, key, z, off, w, sh)
+        shear_cross_layer::<K, V, ONE>(cl, table, run, z, off, w, sh)
     })
 }
 
+/// Runs [`shear_cross_layer_body`], in its AVX2 build when the CPU has it (the results are the same bit for
+/// bit: no floating-point contraction or reordering is allowed either way).
+#[allow(unsafe_code)]
 fn shear_cross_layer<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
     table: &KernelTable<K>,
-    key: u64,
+    run: Run,
+    z: usize,
+    off: usize,
+    out: &mut [DVec3],
+    sh: ShearImages,
+) -> DMat3 {
+    #[cfg(target_arch = "x86_64")]
+    if run.simd {
+        // SAFETY: `run.simd` is true only when the CPU reports AVX2 (`Run::simd_available`).
+        return unsafe { shear_cross_layer_avx2::<K, V, ONE>(cl, table, run, z, off, out, sh) };
+    }
+    shear_cross_layer_body::<K, V, ONE>(cl, table, run, z, off, out, sh)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn shear_cross_layer_avx2<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    run: Run,
+    z: usize,
+    off: usize,
+    out: &mut [DVec3],
+    sh: ShearImages,
+) -> DMat3 {
+    shear_cross_layer_body::<K, V, ONE>(cl, table, run, z, off, out, sh)
+}
+
+#[inline(always)]
+fn shear_cross_layer_body<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    run: Run,
     z: usize,
     off: usize,
     out: &mut [DVec3],
@@ -548,23 +744,18 @@ fn shear_cross_layer<K: PairKernel, const V: bool, const ONE: bool>(
                 let pi = cl.pos[i];
                 let vi = cl.vel[i];
                 let idi = cl.id[i];
-                let row = if ONE {
-                    table.row(0)
-                } else {
-                    table.row(cl.ptype[i] as usize)
-                };
+                let ti = if ONE { 0 } else { cl.ptype[i] as usize };
+                let (row, rc2_row) = (table.row(ti), table.cutoff2_row(ti));
                 let mut fi = DVec3::ZERO;
                 for &(a, e, shift, vshift) in &nb[..nnb] {
                     hits.n = 0;
-                    hits.scan::<K, ONE>(row, cl, a, e, |pj| (pi - pj) - shift);
-                    for &h in &hits.h[..hits.n] {
-                        let j = h.j as usize;
-                        let kern = if ONE { row[0] } else { row[cl.ptype[j] as usize] };
-                        let xi = pair_xi(key, idi, cl.id[j]);
-                        let f = kern.force(h.dr, h.r2, (vi - cl.vel[j]) - vshift, xi);
+                    hits.scan::<K, ONE, true>(row, rc2_row, Src::sorted(cl), run.simd, a, e, pi, shift);
+                    for k in 0..hits.n {
+                        let hit = hits.get(k);
+                        let f = pair_force::<K, ONE>(row, cl, run.key, run.noise, vi, idi, hit, vshift);
                         fi += f;
                         if V {
-                            vir += outer(h.dr, f * 0.5);
+                            vir += outer(hit.1, f * 0.5);
                         }
                     }
                 }
@@ -573,4 +764,113 @@ fn shear_cross_layer<K: PairKernel, const V: bool, const ONE: bool>(
         }
     }
     vir
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::cells::CellGrid;
+    use crate::kernel::DpdLinear;
+    use crate::{PairParams, PeriodicBox};
+    use rand_xoshiro::rand_core::{RngCore, SeedableRng};
+
+    /// 600 random particles of 2 types in a 6.3 × 5.1 × 4.7 box (cells of ≥ 1, so the x rows
+    /// wrap and merge unevenly), random velocities; type pair (1, 1) has a shorter cutoff 0.8
+    /// and (0, 1) no interaction at all, to exercise the per-type cutoffs.
+    fn setup(kbt: Real) -> (CellList, KernelTable<DpdLinear>, KernelTable<DpdLinear>) {
+        let l = DVec3::new(6.3, 5.1, 4.7);
+        let domain = PeriodicBox::new(l).unwrap();
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(7);
+        let mut u = || (rng.next_u64() >> 11) as Real / (1u64 << 53) as Real;
+        let n = 600;
+        let pos: Vec<DVec3> = (0..n).map(|_| DVec3::new(u() * l.x, u() * l.y, u() * l.z)).collect();
+        let vel: Vec<DVec3> = (0..n).map(|_| DVec3::new(u(), u(), u()) - 0.5).collect();
+        let ptype: Vec<u16> = (0..n).map(|i| (i % 3 == 0) as u16).collect();
+        let id: Vec<u32> = (0..n as u32).collect();
+        let mut cl = CellList::new(CellGrid::new(&domain, 1.0).unwrap());
+        cl.build(&pos, &ptype, &id, |i| vel[i]);
+        let p = PairParams {
+            kbt,
+            ..PairParams::groot_warren()
+        };
+        let short = PairParams { rc: 0.8, ..p };
+        let two = KernelTable::from_fn(2, |i, j| match (i, j) {
+            (0, 0) => DpdLinear::new(&p, 0.01, true),
+            (1, 1) => DpdLinear::new(&short, 0.01, true),
+            _ => DpdLinear::new(&p, 0.01, false),
+        });
+        let one = KernelTable::from_fn(1, |_, _| DpdLinear::new(&p, 0.01, true));
+        (cl, one, two)
+    }
+
+    fn all_schemes(cl: &CellList, t: &KernelTable<DpdLinear>, run: Run) -> Vec<(Vec<DVec3>, DMat3)> {
+        if t.ntypes() == 1 {
+            let mut cl = cl.clone();
+            cl.ptype.fill(0);
+            schemes::<true>(&cl, t, run)
+        } else {
+            schemes::<false>(cl, t, run)
+        }
+    }
+
+    fn schemes<const ONE: bool>(cl: &CellList, t: &KernelTable<DpdLinear>, run: Run) -> Vec<(Vec<DVec3>, DMat3)> {
+        let n = cl.pos.len();
+        let sh = ShearImages {
+            offset: 2.345,
+            velocity: 0.7,
+        };
+        let mut out = Vec::new();
+        for le in [false, true] {
+            let mut f = vec![DVec3::ZERO; n];
+            let mut w = half_shell::<DpdLinear, true, ONE>(cl, t, run, &mut f, le);
+            if le {
+                w += shear_cross::<DpdLinear, true, ONE>(cl, t, run, &mut f, sh);
+            }
+            out.push((f, w));
+            let mut f = vec![DVec3::ZERO; n];
+            let w = gather::<DpdLinear, true, ONE>(cl, t, run, &mut f, le);
+            out.push((f, w));
+        }
+        out
+    }
+
+    /// The AVX2 distance test and the portable one give the same forces and virials bit for bit,
+    /// for one and two types, both schemes and the Lees–Edwards pass. Without AVX2 on the test
+    /// machine only the portable path runs, and this says so.
+    #[test]
+    fn simd_and_portable_loops_agree_bit_for_bit() {
+        let (cl, one, two) = setup(1.0);
+        let portable = Run {
+            key: 42,
+            noise: true,
+            simd: false,
+        };
+        for t in [&one, &two] {
+            let a = all_schemes(&cl, t, portable);
+            assert!(a.iter().all(|(f, _)| f.iter().any(|x| *x != DVec3::ZERO)));
+            if Run::simd_available() {
+                let b = all_schemes(&cl, t, Run { simd: true, ..portable });
+                assert!(a == b, "AVX2 and portable pair loops differ");
+            } else {
+                eprintln!("no AVX2 on this CPU: only the portable loop was run");
+            }
+        }
+    }
+
+    /// At zero temperature no pair is noisy, the loops skip the hash, and the forces equal those
+    /// computed with the noise on but ξ multiplied by σ = 0 (i.e. the same numbers).
+    #[test]
+    fn zero_temperature_skips_the_noise() {
+        let (cl, cold, _) = setup(0.0);
+        assert!(!cold.row(0)[0].noisy());
+        let (_, hot, _) = setup(1.0);
+        assert!(hot.row(0)[0].noisy());
+        let skip = Run {
+            key: 9,
+            noise: false,
+            simd: false,
+        };
+        let with_hash = Run { noise: true, ..skip };
+        assert!(all_schemes(&cl, &cold, skip) == all_schemes(&cl, &cold, with_hash));
+    }
 }

@@ -374,6 +374,18 @@ pub struct SimConfig {
     /// boundaries (see [`crate::PeriodicBox`]). Default 0: an ordinary periodic box.
     #[serde(default)]
     pub shear_rate: Real,
+    /// Every `sort_every` steps (0: never) the particles are put into cell order in storage, so
+    /// that the per-step cell sort and the force scatter read memory nearly in sequence. It runs
+    /// only when the extension allows storage indices to change
+    /// ([`crate::Extension::allows_reordering`]: a plain fluid does); it is a deterministic
+    /// function of the positions, so thread-count independence and bit-identical restarts hold.
+    /// Default 0 (off; `docs/performance.md` has what it gains).
+    #[serde(default = "default_sort_every")]
+    pub sort_every: u64,
+}
+
+fn default_sort_every() -> u64 {
+    0
 }
 
 impl SimConfig {
@@ -386,6 +398,7 @@ impl SimConfig {
             seed,
             scheme: ForceScheme::default(),
             shear_rate: 0.0,
+            sort_every: default_sort_every(),
         }
     }
 

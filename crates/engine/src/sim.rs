@@ -40,9 +40,20 @@ pub trait Extension {
     fn end_of_step(&mut self, _state: &mut StateMut<'_>) -> Result<(), EngineError> {
         Ok(())
     }
+
+    /// Whether the engine may reorder the particles in storage ([`SimConfig::sort_every`]).
+    /// False by default: an extension that refers to particles by storage index (a membrane's
+    /// vertex range, per-particle state) must not see them move.
+    fn allows_reordering(&self) -> bool {
+        false
+    }
 }
 
-impl Extension for () {}
+impl Extension for () {
+    fn allows_reordering(&self) -> bool {
+        true
+    }
+}
 
 /// Two extensions composed: each hook runs the first, then the second (walls, then a membrane;
 /// nest pairs for more: `(Walls, (Cell, Drive))`). No combinator per pair of extension kinds.
@@ -63,6 +74,10 @@ impl<A: Extension, B: Extension> Extension for (A, B) {
     fn end_of_step(&mut self, state: &mut StateMut<'_>) -> Result<(), EngineError> {
         self.0.end_of_step(state)?;
         self.1.end_of_step(state)
+    }
+
+    fn allows_reordering(&self) -> bool {
+        self.0.allows_reordering() && self.1.allows_reordering()
     }
 }
 
@@ -90,6 +105,10 @@ impl<E: Extension> Extension for Option<E> {
             Some(e) => e.end_of_step(state),
             None => Ok(()),
         }
+    }
+
+    fn allows_reordering(&self) -> bool {
+        self.as_ref().is_none_or(|e| e.allows_reordering())
     }
 }
 
@@ -130,6 +149,10 @@ impl<E: Extension> Extension for Timed<E> {
         let r = self.inner.end_of_step(state);
         self.seconds += t.elapsed().as_secs_f64();
         r
+    }
+
+    fn allows_reordering(&self) -> bool {
+        self.inner.allows_reordering()
     }
 }
 
@@ -510,7 +533,31 @@ impl<E: Extension> Simulation<E> {
             let (mut s, ext) = self.state_mut();
             ext.end_of_step(&mut s).map_err(|e| wrap_ext(e, step))?;
         }
+        let every = self.config.sort_every;
+        if every > 0 && self.step % every == 0 && self.ext.allows_reordering() {
+            self.sort_storage();
+        }
         Ok(w)
+    }
+
+    /// Puts the particles into the cell order of the last force evaluation (the positions have
+    /// not changed since: the extension allows reordering, so it moves nothing by index). The
+    /// order is the stable cell sort of the current storage order, a function of the state only.
+    fn sort_storage(&mut self) {
+        let perm = &self.cells.perm;
+        let p = &mut self.particles;
+        if perm.len() != p.pos.len() {
+            return;
+        }
+        fn gather<T: Copy + Send + Sync>(v: &mut Vec<T>, perm: &[u32]) {
+            let sorted: Vec<T> = perm.par_iter().with_min_len(MIN_LEN).map(|&i| v[i as usize]).collect();
+            *v = sorted;
+        }
+        gather(&mut p.pos, perm);
+        gather(&mut p.vel, perm);
+        gather(&mut p.force, perm);
+        gather(&mut p.ptype, perm);
+        gather(&mut p.id, perm);
     }
 
     fn instability(&self, i: usize, step: u64, cell: Real) -> EngineError {

@@ -103,12 +103,23 @@ fn momentum_accounting_across_the_boundary() {
     let p0 = observe::shear_streaming_offset(sim.particles(), sim.field(), rate) * sim.particles().len() as f64;
     let m0 = observe::momentum(sim.particles(), sim.field());
     let mut crossed = 0u64;
-    let mut prev_y: Vec<f64> = sim.particles().pos.iter().map(|x| x.y).collect();
+    let mut net_up = 0i64;
+    // By id: a plain fluid's storage is reordered every `sort_every` steps.
+    let by_id = |p: &hemodpd_engine::Particles| {
+        let mut y = vec![0.0; p.len()];
+        for (x, &id) in p.pos.iter().zip(&p.id) {
+            y[id as usize] = x.y;
+        }
+        y
+    };
+    let mut prev_y = by_id(sim.particles());
     for _ in 0..1000 {
         sim.step().unwrap();
-        for (y, x) in prev_y.iter_mut().zip(&sim.particles().pos) {
-            crossed += ((*y - x.y).abs() > 3.0) as u64;
-            *y = x.y;
+        for (y, x) in prev_y.iter_mut().zip(by_id(sim.particles())) {
+            crossed += ((*y - x).abs() > 3.0) as u64;
+            // up through y = L (re-enters at the bottom, k = +1) or down through y = 0
+            net_up += (*y - x > 3.0) as i64 - (x - *y > 3.0) as i64;
+            *y = x;
         }
     }
     let p = sim.particles();
@@ -125,8 +136,14 @@ fn momentum_accounting_across_the_boundary() {
     assert!(crossed > 50, "only {crossed} crossings");
     assert!((p1 - p0).abs() < 1e-10 * scale, "Σ m(v_x − γ̇ y) moved: {p0} → {p1}");
     assert!((m1.y - m0.y).abs() < 1e-10 * scale && (m1.z - m0.z).abs() < 1e-10 * scale);
-    // while Σ m v_x itself changed by the crossings (it is not conserved under shear)
-    assert!((m1.x - m0.x).abs() > 1.0, "P_x did not change: no crossing accounted?");
+    // while Σ m v_x itself changes by −U per net upward crossing (m = 1): not conserved
+    let u = rate * 6.0;
+    let expect = -u * net_up as f64;
+    assert!(
+        (m1.x - m0.x - expect).abs() < 1e-9 * scale,
+        "ΔP_x = {} but {net_up} net upward crossings give {expect}",
+        m1.x - m0.x
+    );
 }
 
 fn run_in_pool(threads: usize, scheme: ForceScheme) -> (Vec<[u64; 3]>, Vec<[u64; 3]>) {

@@ -332,10 +332,15 @@ fn binned_fields(sim: &Simulation, bins: usize) -> (GridSpec, Vec<f64>, Vec<f64>
 fn write_frame(s: &FluidScenario, w: &mut TrajectoryWriter, sim: &Simulation) -> Result<(), RunError> {
     let p = sim.particles();
     let stride = s.output.particle_stride as usize;
-    let pos: Vec<DVec3> = p.pos.iter().step_by(stride).copied().collect();
-    let vel: Vec<DVec3> = p.vel.iter().step_by(stride).copied().collect();
+    // In id order: the engine reorders storage now and then (`SimConfig::sort_every`), and a
+    // frame's rows must be the same particles in every frame.
+    let mut order: Vec<usize> = (0..p.len()).collect();
+    order.sort_unstable_by_key(|&i| p.id[i]);
+    let rows = || order.iter().step_by(stride).copied();
+    let pos: Vec<DVec3> = rows().map(|i| p.pos[i]).collect();
+    let vel: Vec<DVec3> = rows().map(|i| p.vel[i]).collect();
     // u16 engine types; a type the file's u8 cannot hold is an error, not a truncation
-    let types: Vec<u16> = p.ptype.iter().step_by(stride).copied().collect();
+    let types: Vec<u16> = rows().map(|i| p.ptype[i]).collect();
     w.append_fluid_frame_u16(sim.step_count(), sim.time(), &pos, Some(&vel), Some(&types))
         .map_err(out_err)?;
     if s.output.field_bins > 0 {
