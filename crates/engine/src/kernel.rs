@@ -125,6 +125,9 @@ pub struct KernelTable<K> {
     k: Vec<K>,
     /// `k[..].cutoff2()`, same layout.
     rc2: Vec<Real>,
+    /// Per row: the squared cutoff when it is the same for every type of j (the common case: a
+    /// fluid particle meets every type at rc), so the distance test needs no type lookup.
+    uniform: Vec<Option<Real>>,
 }
 
 impl<K: PairKernel> KernelTable<K> {
@@ -136,8 +139,12 @@ impl<K: PairKernel> KernelTable<K> {
                 k.push(f(i, j));
             }
         }
-        let rc2 = k.iter().map(|k| k.cutoff2()).collect();
-        Self { nt, k, rc2 }
+        let rc2: Vec<Real> = k.iter().map(|k| k.cutoff2()).collect();
+        let uniform = rc2
+            .chunks(nt)
+            .map(|row| row.iter().all(|&c| c == row[0]).then_some(row[0]))
+            .collect();
+        Self { nt, k, rc2, uniform }
     }
 
     /// Number of types.
@@ -156,6 +163,12 @@ impl<K: PairKernel> KernelTable<K> {
     #[inline(always)]
     pub fn cutoff2_row(&self, i: usize) -> &[Real] {
         &self.rc2[i * self.nt..(i + 1) * self.nt]
+    }
+
+    /// The squared cutoff of row i if it does not depend on the type of j.
+    #[inline(always)]
+    pub fn uniform_cutoff2(&self, i: usize) -> Option<Real> {
+        self.uniform[i]
     }
 
     /// Row i (kernels of (i, 0..nt)).

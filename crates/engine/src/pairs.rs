@@ -63,9 +63,10 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
     DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
-/// Lanes of the distance test: candidates are tested `LANES` at a time on the structure-of-arrays
-/// positions (the sorted arrays are padded so a chunk may read past the end of a range).
-pub(crate) const LANES: usize = 4;
+/// The most lanes of the distance test: candidates are tested up to `LANES` at a time on the
+/// structure-of-arrays positions (the sorted arrays are padded so a chunk may read past the end
+/// of a range).
+pub(crate) const LANES: usize = 8;
 const _: () = assert!(crate::cells::PAD + 1 >= LANES);
 
 /// Where the distance test reads its candidates: padded structure-of-arrays positions and types,
@@ -121,45 +122,40 @@ impl Hits {
     fn scan<K: PairKernel, const ONE: bool, const POST: bool>(
         &mut self,
         row: &[K],
-        rc2_row: &[Real],
+        (rc2_row, uniform): (&[Real], Option<Real>),
         src: Src<'_>,
-        simd: bool,
+        isa: Isa,
         a: usize,
         e: usize,
         p: DVec3,
         sh: DVec3,
     ) {
         #[cfg(target_arch = "x86_64")]
-        if simd {
-            let cutoff = if ONE {
-                simd::Cutoff::One(rc2_row[0])
-            } else {
-                simd::Cutoff::PerType {
+        if isa != Isa::Portable {
+            let cutoff = match (ONE, uniform) {
+                (true, _) => simd::Cutoff::One(rc2_row[0]),
+                (false, Some(c)) => simd::Cutoff::One(c),
+                (false, None) => simd::Cutoff::PerType {
                     ptype: src.ptype,
                     table: rc2_row,
-                }
+                },
             };
-            // SAFETY: `simd` is true only when the CPU reports AVX2 (`Run::simd_available`), and
-            // then this is compiled into the `*_avx2` builds of the tasks (inline(always) all the
-            // way up), which enable AVX2.
+            let (pos, p, sh) = ([src.px, src.py, src.pz], p.to_array(), sh.to_array());
+            // SAFETY: `isa` names an instruction set the CPU reports (`Isa::detect`), and then
+            // this is compiled into the `*_avx2` / `*_avx512` builds of the tasks (inline(always)
+            // all the way up), which enable it.
             #[allow(unsafe_code)]
             let n = unsafe {
-                simd::scan_avx2::<POST>(
-                    [src.px, src.py, src.pz],
-                    cutoff,
-                    a,
-                    e,
-                    p.to_array(),
-                    sh.to_array(),
-                    src.ids,
-                    &mut self.h,
-                    self.n,
-                )
+                if isa == Isa::Avx512 {
+                    simd::scan_avx512::<POST>(pos, cutoff, a, e, p, sh, src.ids, &mut self.h, self.n)
+                } else {
+                    simd::scan_avx2::<POST>(pos, cutoff, a, e, p, sh, src.ids, &mut self.h, self.n)
+                }
             };
             self.n = n;
             return;
         }
-        let _ = (simd, rc2_row);
+        let _ = (isa, rc2_row, uniform);
         let mut n = self.n;
         let rc2_one = row[0].cutoff2();
         let h = &mut self.h;
@@ -234,20 +230,47 @@ struct Run {
     key: u64,
     /// Whether any pair has a random force (false at zero temperature: no hash is computed).
     noise: bool,
-    /// Whether the tasks may run their AVX2 build (detected at run time).
-    simd: bool,
+    /// The instruction set the tasks run with (detected at run time).
+    isa: Isa,
 }
 
-impl Run {
-    fn simd_available() -> bool {
+/// Builds of the pair tasks: all give the same results bit for bit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Isa {
+    /// Plain Rust, any CPU.
+    Portable,
+    /// x86-64 with AVX2: the distance test 4 candidates at a time.
+    Avx2,
+    /// x86-64 with AVX-512 F and VL: 8 at a time.
+    Avx512,
+}
+
+impl Isa {
+    /// The widest build this CPU runs. `HEMODPD_ISA=portable|avx2` caps it (for benchmarks and
+    /// to cross-check the builds); a cap the CPU does not support is ignored.
+    fn detect() -> Self {
+        static ISA: std::sync::OnceLock<Isa> = std::sync::OnceLock::new();
+        *ISA.get_or_init(|| {
+            let best = Self::best();
+            match std::env::var("HEMODPD_ISA").as_deref() {
+                Ok("portable") => Isa::Portable,
+                Ok("avx2") if best != Isa::Portable => Isa::Avx2,
+                _ => best,
+            }
+        })
+    }
+
+    fn best() -> Self {
         #[cfg(target_arch = "x86_64")]
         {
-            std::arch::is_x86_feature_detected!("avx2")
+            if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx512vl") {
+                return Isa::Avx512;
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                return Isa::Avx2;
+            }
         }
-        #[cfg(not(target_arch = "x86_64"))]
-        {
-            false
-        }
+        Isa::Portable
     }
 }
 
@@ -270,7 +293,7 @@ pub fn compute<K: PairKernel>(
     let run = Run {
         key,
         noise: (0..table.ntypes()).any(|i| table.row(i).iter().any(|k| k.noisy())),
-        simd: Run::simd_available(),
+        isa: Isa::detect(),
     };
     let w = match (scheme, virial, one) {
         (ForceScheme::HalfShell, false, false) => half_shell::<K, false, false>(cl, table, run, sf, le),
@@ -406,7 +429,7 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
     vir.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
 }
 
-/// Runs [`slab_body`], in its AVX2 build when the CPU has it (the results are the same bit for
+/// Runs [`slab_body`], in its AVX-512 or AVX2 build when the CPU has it (the results are the same bit for
 /// bit: no floating-point contraction or reordering is allowed either way).
 #[allow(unsafe_code)]
 fn slab<K: PairKernel, const V: bool, const ONE: bool>(
@@ -417,10 +440,12 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
     win: &mut Win<'_>,
     le: bool,
 ) -> DMat3 {
+    // SAFETY: `run.isa` names an instruction set the CPU reports (`Isa::detect`).
     #[cfg(target_arch = "x86_64")]
-    if run.simd {
-        // SAFETY: `run.simd` is true only when the CPU reports AVX2 (`Run::simd_available`).
-        return unsafe { slab_avx2::<K, V, ONE>(cl, table, run, zz, win, le) };
+    match run.isa {
+        Isa::Avx512 => return unsafe { slab_avx512::<K, V, ONE>(cl, table, run, zz, win, le) },
+        Isa::Avx2 => return unsafe { slab_avx2::<K, V, ONE>(cl, table, run, zz, win, le) },
+        Isa::Portable => {}
     }
     slab_body::<K, V, ONE>(cl, table, run, zz, win, le)
 }
@@ -428,6 +453,19 @@ fn slab<K: PairKernel, const V: bool, const ONE: bool>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn slab_avx2<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    run: Run,
+    zz: (usize, usize),
+    win: &mut Win<'_>,
+    le: bool,
+) -> DMat3 {
+    slab_body::<K, V, ONE>(cl, table, run, zz, win, le)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl")]
+fn slab_avx512<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
     table: &KernelTable<K>,
     run: Run,
@@ -477,12 +515,12 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     let vi = cl.vel[i];
                     let idi = cl.id[i];
                     let ti = if ONE { 0 } else { cl.ptype[i] as usize };
-                    let (row, rc2_row) = (table.row(ti), table.cutoff2_row(ti));
+                    let (row, rc2_row) = (table.row(ti), (table.cutoff2_row(ti), table.uniform_cutoff2(ti)));
                     // The cell's own later particles, then the neighbour ranges, in visiting order.
                     hits.n = 0;
-                    hits.scan::<K, ONE, false>(row, rc2_row, src, run.simd, i + 1, s1, pi, DVec3::ZERO);
+                    hits.scan::<K, ONE, false>(row, rc2_row, src, run.isa, i + 1, s1, pi, DVec3::ZERO);
                     for &(a, e, sh) in &nb[..nnb] {
-                        hits.scan::<K, ONE, false>(row, rc2_row, src, run.simd, a, e, pi - sh, DVec3::ZERO);
+                        hits.scan::<K, ONE, false>(row, rc2_row, src, run.isa, a, e, pi - sh, DVec3::ZERO);
                     }
                     let mut fi = DVec3::ZERO;
                     for k in 0..hits.n {
@@ -537,7 +575,7 @@ fn per_layer(cl: &CellList, sf: &mut [DVec3], task: impl Fn(usize, usize, &mut [
     out.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
 }
 
-/// Runs [`gather_layer_body`], in its AVX2 build when the CPU has it (the results are the same bit for
+/// Runs [`gather_layer_body`], in its AVX-512 or AVX2 build when the CPU has it (the results are the same bit for
 /// bit: no floating-point contraction or reordering is allowed either way).
 #[allow(unsafe_code)]
 fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
@@ -549,10 +587,12 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
     out: &mut [DVec3],
     le: bool,
 ) -> DMat3 {
+    // SAFETY: `run.isa` names an instruction set the CPU reports (`Isa::detect`).
     #[cfg(target_arch = "x86_64")]
-    if run.simd {
-        // SAFETY: `run.simd` is true only when the CPU reports AVX2 (`Run::simd_available`).
-        return unsafe { gather_layer_avx2::<K, V, ONE>(cl, table, run, z, off, out, le) };
+    match run.isa {
+        Isa::Avx512 => return unsafe { gather_layer_avx512::<K, V, ONE>(cl, table, run, z, off, out, le) },
+        Isa::Avx2 => return unsafe { gather_layer_avx2::<K, V, ONE>(cl, table, run, z, off, out, le) },
+        Isa::Portable => {}
     }
     gather_layer_body::<K, V, ONE>(cl, table, run, z, off, out, le)
 }
@@ -560,6 +600,20 @@ fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn gather_layer_avx2<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    run: Run,
+    z: usize,
+    off: usize,
+    out: &mut [DVec3],
+    le: bool,
+) -> DMat3 {
+    gather_layer_body::<K, V, ONE>(cl, table, run, z, off, out, le)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl")]
+fn gather_layer_avx512<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
     table: &KernelTable<K>,
     run: Run,
@@ -613,12 +667,12 @@ fn gather_layer_body<K: PairKernel, const V: bool, const ONE: bool>(
                 let vi = cl.vel[i];
                 let idi = cl.id[i];
                 let ti = if ONE { 0 } else { cl.ptype[i] as usize };
-                let (row, rc2_row) = (table.row(ti), table.cutoff2_row(ti));
+                let (row, rc2_row) = (table.row(ti), (table.cutoff2_row(ti), table.uniform_cutoff2(ti)));
                 // dr = (x_i − x_j) − shift is exactly the negative of what j computes for i
                 // (j == i gives r² = 0 and is skipped), so Newton's third law holds bit for bit.
                 hits.n = 0;
                 for &(a, e, sh) in &nb[..nnb] {
-                    hits.scan::<K, ONE, true>(row, rc2_row, Src::sorted(cl), run.simd, a, e, pi, sh);
+                    hits.scan::<K, ONE, true>(row, rc2_row, Src::sorted(cl), run.isa, a, e, pi, sh);
                 }
                 let mut fi = DVec3::ZERO;
                 for k in 0..hits.n {
@@ -652,7 +706,7 @@ fn shear_cross<K: PairKernel, const V: bool, const ONE: bool>(
     })
 }
 
-/// Runs [`shear_cross_layer_body`], in its AVX2 build when the CPU has it (the results are the same bit for
+/// Runs [`shear_cross_layer_body`], in its AVX-512 or AVX2 build when the CPU has it (the results are the same bit for
 /// bit: no floating-point contraction or reordering is allowed either way).
 #[allow(unsafe_code)]
 fn shear_cross_layer<K: PairKernel, const V: bool, const ONE: bool>(
@@ -664,10 +718,12 @@ fn shear_cross_layer<K: PairKernel, const V: bool, const ONE: bool>(
     out: &mut [DVec3],
     sh: ShearImages,
 ) -> DMat3 {
+    // SAFETY: `run.isa` names an instruction set the CPU reports (`Isa::detect`).
     #[cfg(target_arch = "x86_64")]
-    if run.simd {
-        // SAFETY: `run.simd` is true only when the CPU reports AVX2 (`Run::simd_available`).
-        return unsafe { shear_cross_layer_avx2::<K, V, ONE>(cl, table, run, z, off, out, sh) };
+    match run.isa {
+        Isa::Avx512 => return unsafe { shear_cross_layer_avx512::<K, V, ONE>(cl, table, run, z, off, out, sh) },
+        Isa::Avx2 => return unsafe { shear_cross_layer_avx2::<K, V, ONE>(cl, table, run, z, off, out, sh) },
+        Isa::Portable => {}
     }
     shear_cross_layer_body::<K, V, ONE>(cl, table, run, z, off, out, sh)
 }
@@ -675,6 +731,20 @@ fn shear_cross_layer<K: PairKernel, const V: bool, const ONE: bool>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn shear_cross_layer_avx2<K: PairKernel, const V: bool, const ONE: bool>(
+    cl: &CellList,
+    table: &KernelTable<K>,
+    run: Run,
+    z: usize,
+    off: usize,
+    out: &mut [DVec3],
+    sh: ShearImages,
+) -> DMat3 {
+    shear_cross_layer_body::<K, V, ONE>(cl, table, run, z, off, out, sh)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl")]
+fn shear_cross_layer_avx512<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
     table: &KernelTable<K>,
     run: Run,
@@ -745,11 +815,11 @@ fn shear_cross_layer_body<K: PairKernel, const V: bool, const ONE: bool>(
                 let vi = cl.vel[i];
                 let idi = cl.id[i];
                 let ti = if ONE { 0 } else { cl.ptype[i] as usize };
-                let (row, rc2_row) = (table.row(ti), table.cutoff2_row(ti));
+                let (row, rc2_row) = (table.row(ti), (table.cutoff2_row(ti), table.uniform_cutoff2(ti)));
                 let mut fi = DVec3::ZERO;
                 for &(a, e, shift, vshift) in &nb[..nnb] {
                     hits.n = 0;
-                    hits.scan::<K, ONE, true>(row, rc2_row, Src::sorted(cl), run.simd, a, e, pi, shift);
+                    hits.scan::<K, ONE, true>(row, rc2_row, Src::sorted(cl), run.isa, a, e, pi, shift);
                     for k in 0..hits.n {
                         let hit = hits.get(k);
                         let f = pair_force::<K, ONE>(row, cl, run.key, run.noise, vi, idi, hit, vshift);
@@ -834,25 +904,32 @@ mod tests {
         out
     }
 
-    /// The AVX2 distance test and the portable one give the same forces and virials bit for bit,
-    /// for one and two types, both schemes and the Lees–Edwards pass. Without AVX2 on the test
-    /// machine only the portable path runs, and this says so.
+    /// The AVX2 and AVX-512 distance tests and the portable one give the same forces and virials
+    /// bit for bit, for one and two types, both schemes and the Lees–Edwards pass. A build the
+    /// test machine's CPU cannot run is not compared, and the test says so.
     #[test]
     fn simd_and_portable_loops_agree_bit_for_bit() {
         let (cl, one, two) = setup(1.0);
         let portable = Run {
             key: 42,
             noise: true,
-            simd: false,
+            isa: Isa::Portable,
         };
         for t in [&one, &two] {
             let a = all_schemes(&cl, t, portable);
             assert!(a.iter().all(|(f, _)| f.iter().any(|x| *x != DVec3::ZERO)));
-            if Run::simd_available() {
-                let b = all_schemes(&cl, t, Run { simd: true, ..portable });
-                assert!(a == b, "AVX2 and portable pair loops differ");
-            } else {
-                eprintln!("no AVX2 on this CPU: only the portable loop was run");
+            let best = Isa::best();
+            for isa in [Isa::Avx2, Isa::Avx512] {
+                let on_cpu = match isa {
+                    Isa::Avx512 => best == Isa::Avx512,
+                    _ => best != Isa::Portable,
+                };
+                if on_cpu {
+                    let b = all_schemes(&cl, t, Run { isa, ..portable });
+                    assert!(a == b, "{isa:?} and portable pair loops differ");
+                } else {
+                    eprintln!("this CPU has no {isa:?}: that build was not compared");
+                }
             }
         }
     }
@@ -868,7 +945,7 @@ mod tests {
         let skip = Run {
             key: 9,
             noise: false,
-            simd: false,
+            isa: Isa::Portable,
         };
         let with_hash = Run { noise: true, ..skip };
         assert!(all_schemes(&cl, &cold, skip) == all_schemes(&cl, &cold, with_hash));

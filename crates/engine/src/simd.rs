@@ -205,3 +205,120 @@ pub(crate) unsafe fn scan_avx2<const POST: bool>(
     }
     n
 }
+
+/// The AVX-512 (F + VL) build of [`scan_avx2`]: 8 candidates per chunk, the hits compressed in
+/// registers. Same arguments, same results bit for bit; `px, py, pz` (and `ids`, `ptype`) must
+/// hold at least `e + 7` entries and `out` room for `n + (e − a) + 8` hits.
+///
+/// # Safety
+/// Only to be called from a function compiled with AVX-512F and AVX-512VL enabled on a CPU that
+/// has them (see [`scan_avx2`]).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn scan_avx512<const POST: bool>(
+    [px, py, pz]: [&[Real]; 3],
+    cutoff: Cutoff<'_>,
+    a: usize,
+    e: usize,
+    p: [Real; 3],
+    sh: [Real; 3],
+    ids: Option<&[u32]>,
+    out: &mut HitArrays,
+    mut n: usize,
+) -> usize {
+    if a >= e {
+        return n;
+    }
+    let end = e + 7;
+    assert!(
+        px.len() >= end && py.len() >= end && pz.len() >= end,
+        "positions not padded"
+    );
+    let room = n + (e - a) + 8;
+    assert!(
+        out.j.len() >= room
+            && out.dx.len() >= room
+            && out.dy.len() >= room
+            && out.dz.len() >= room
+            && out.r2.len() >= room,
+        "hit arrays too short"
+    );
+    if let Cutoff::PerType { ptype, .. } = cutoff {
+        assert!(ptype.len() >= end, "types not padded");
+    }
+    if let Some(ids) = ids {
+        assert!(ids.len() >= end, "ids not padded");
+    }
+    let (qx, qy, qz) = (_mm512_set1_pd(p[0]), _mm512_set1_pd(p[1]), _mm512_set1_pd(p[2]));
+    let (sx, sy, sz) = (_mm512_set1_pd(sh[0]), _mm512_set1_pd(sh[1]), _mm512_set1_pd(sh[2]));
+    let zero = _mm512_setzero_pd();
+    let rc2_one = match cutoff {
+        Cutoff::One(c) => _mm512_set1_pd(c),
+        Cutoff::PerType { .. } => zero,
+    };
+    let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let (px, py, pz) = (px.as_ptr(), py.as_ptr(), pz.as_ptr());
+    let (oj, ox, oy, oz, or) = (
+        out.j.as_mut_ptr(),
+        out.dx.as_mut_ptr(),
+        out.dy.as_mut_ptr(),
+        out.dz.as_mut_ptr(),
+        out.r2.as_mut_ptr(),
+    );
+    let mut j = a;
+    while j < e {
+        // SAFETY: j + 7 < e + 7 ≤ the padded lengths asserted above; the stores are at
+        // n .. n + 8 ≤ room, also asserted.
+        unsafe {
+            let x = _mm512_loadu_pd(px.add(j));
+            let y = _mm512_loadu_pd(py.add(j));
+            let z = _mm512_loadu_pd(pz.add(j));
+            let (dx, dy, dz) = if POST {
+                (
+                    _mm512_sub_pd(_mm512_sub_pd(qx, x), sx),
+                    _mm512_sub_pd(_mm512_sub_pd(qy, y), sy),
+                    _mm512_sub_pd(_mm512_sub_pd(qz, z), sz),
+                )
+            } else {
+                (_mm512_sub_pd(qx, x), _mm512_sub_pd(qy, y), _mm512_sub_pd(qz, z))
+            };
+            // (dx² + dy²) + dz², as the scalar loop and `DVec3::dot` evaluate it
+            let r2 = _mm512_add_pd(
+                _mm512_add_pd(_mm512_mul_pd(dx, dx), _mm512_mul_pd(dy, dy)),
+                _mm512_mul_pd(dz, dz),
+            );
+            let rc2 = match cutoff {
+                Cutoff::One(_) => rc2_one,
+                Cutoff::PerType { ptype, table } => {
+                    let t = ptype.as_ptr().add(j);
+                    _mm512_set_pd(
+                        table[*t.add(7) as usize],
+                        table[*t.add(6) as usize],
+                        table[*t.add(5) as usize],
+                        table[*t.add(4) as usize],
+                        table[*t.add(3) as usize],
+                        table[*t.add(2) as usize],
+                        table[*t.add(1) as usize],
+                        table[*t as usize],
+                    )
+                }
+            };
+            let valid = e - j;
+            let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
+            let mask =
+                _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(tail, r2, rc2) & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(r2, zero);
+            let js = match ids {
+                None => _mm256_add_epi32(_mm256_set1_epi32(j as i32), lane),
+                Some(ids) => _mm256_loadu_si256(ids.as_ptr().add(j).cast()),
+            };
+            _mm256_storeu_si256(oj.add(n).cast(), _mm256_maskz_compress_epi32(mask, js));
+            _mm512_storeu_pd(ox.add(n), _mm512_maskz_compress_pd(mask, dx));
+            _mm512_storeu_pd(oy.add(n), _mm512_maskz_compress_pd(mask, dy));
+            _mm512_storeu_pd(oz.add(n), _mm512_maskz_compress_pd(mask, dz));
+            _mm512_storeu_pd(or.add(n), _mm512_maskz_compress_pd(mask, r2));
+            n += mask.count_ones() as usize;
+        }
+        j += 8;
+    }
+    n
+}
