@@ -353,7 +353,7 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
     le: bool,
 ) -> DMat3 {
     let nz = cl.grid.n[2];
-    let nslab = if nz % 2 == 0 { nz } else { nz - 1 };
+    let nslab = if nz.is_multiple_of(2) { nz } else { nz - 1 };
     let n = sf.len();
     let b: Vec<usize> = (0..=nslab)
         .map(|s| if s < nslab { cl.layer_start(s) } else { n })

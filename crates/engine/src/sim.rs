@@ -534,7 +534,7 @@ impl<E: Extension> Simulation<E> {
             ext.end_of_step(&mut s).map_err(|e| wrap_ext(e, step))?;
         }
         let every = self.config.sort_every;
-        if every > 0 && self.step % every == 0 && self.ext.allows_reordering() {
+        if every > 0 && self.step.is_multiple_of(every) && self.ext.allows_reordering() {
             self.sort_storage();
         }
         Ok(w)
