@@ -509,6 +509,12 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     m += e - a;
                 }
                 let src = Src::sorted(cl);
+                // The cell x + 1 usually follows this one in the sorted arrays with no shift:
+                // then it joins the cell's own range (same visiting order, one range less).
+                let (own_end, skip) = match nb.first() {
+                    Some(&(a, e, sh)) if nnb > 0 && a == s1 && sh == DVec3::ZERO => (e, 1),
+                    _ => (s1, 0),
+                };
                 hits.reserve(m);
                 for i in s0..s1 {
                     let pi = cl.pos[i];
@@ -518,8 +524,8 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     let (row, rc2_row) = (table.row(ti), (table.cutoff2_row(ti), table.uniform_cutoff2(ti)));
                     // The cell's own later particles, then the neighbour ranges, in visiting order.
                     hits.n = 0;
-                    hits.scan::<K, ONE, false>(row, rc2_row, src, run.isa, i + 1, s1, pi, DVec3::ZERO);
-                    for &(a, e, sh) in &nb[..nnb] {
+                    hits.scan::<K, ONE, false>(row, rc2_row, src, run.isa, i + 1, own_end, pi, DVec3::ZERO);
+                    for &(a, e, sh) in &nb[skip..nnb] {
                         hits.scan::<K, ONE, false>(row, rc2_row, src, run.isa, a, e, pi - sh, DVec3::ZERO);
                     }
                     let mut fi = DVec3::ZERO;
