@@ -558,10 +558,16 @@ impl Cell {
 
     /// The engine error of a failed membrane force evaluation at `step`.
     fn force_error(&self, e: ForceError, step: u64) -> EngineError {
+        // before any step has completed the state is the initial one: blame the shape first
+        let cause = if step == 0 {
+            "the initial vertex positions are too far from the resting mesh (a perturbed or badly placed shape), or a time step too large for the membrane's stiffness"
+        } else {
+            "a time step too large for the membrane's stiffness or a flow far beyond the scenario's stated bounds"
+        };
         EngineError::Extension {
             step,
             message: format!(
-                "membrane: {e} (membrane vertices, storage indices {}..{}); likely cause: a time step too large for the membrane's stiffness or a flow far beyond the scenario's stated bounds",
+                "membrane: {e} (membrane vertices, storage indices {}..{}); likely cause: {cause}",
                 self.config.first,
                 self.config.first + self.x.len()
             ),

@@ -925,12 +925,9 @@ pub(crate) fn cell_fluid_field(
         gamma: units::fsi_friction(eta, fluid.density, vertex_density, p.s, p.rc),
         ..p
     };
-    let none = PairParams {
-        a: 0.0,
-        gamma: 0.0,
-        kbt: 0.0,
-        ..p
-    };
+    // no interaction and a zero cutoff: the pair loop never lists these pairs (with rc kept,
+    // every wall–wall and vertex–vertex pair within rc was evaluated to an exact zero)
+    let none = PairParams::none();
     let mut f = ForceField::new(
         vec![
             TypeSpec::new("plasma"),
