@@ -3,7 +3,8 @@
 //! The cell rests with its large diameter in the xz plane. The 5 % of vertices with the largest
 //! x at rest carry +F/(0.05 N) each along x, the 5 % with the smallest x carry −F/(0.05 N).
 //! For each force the equilibrium shape minimises `F_membrane(x) − Σ f_ext · x`, found by
-//! L-BFGS from the previous force's equilibrium (continuation). Converged when the largest
+//! L-BFGS from the previous equilibria (continuation with a linear predictor in the force,
+//! see [`stretch_from`]). Converged when the largest
 //! net force on any vertex is below `tolerance` (in the caller's force unit).
 //! D_A = max x − min x, D_T = 2 max √(y² + z²).
 
