@@ -3,7 +3,8 @@
 //! The cell rests with its large diameter in the xz plane. The 5 % of vertices with the largest
 //! x at rest carry +F/(0.05 N) each along x, the 5 % with the smallest x carry −F/(0.05 N).
 //! For each force the equilibrium shape minimises `F_membrane(x) − Σ f_ext · x`, found by
-//! L-BFGS from the previous force's equilibrium (continuation). Converged when the largest
+//! L-BFGS from the previous equilibria (continuation with a linear predictor in the force,
+//! see [`stretch_from`]). Converged when the largest
 //! net force on any vertex is below `tolerance` (in the caller's force unit).
 //! D_A = max x − min x, D_T = 2 max √(y² + z²).
 
@@ -92,19 +93,47 @@ pub fn stretch(
     opts: &StretchOptions,
     observer: impl FnMut(&StretchPoint),
 ) -> Result<Vec<StretchPoint>, StretchError> {
-    stretch_from(model, rest, rest, opts, || false, observer)
+    stretch_from(model, rest, &[], opts, || false, observer)
 }
 
-/// Like [`stretch`], but starting from `start` (the rest shape, or the equilibrium of the force
-/// before `opts.forces[0]` when a run continues) and polling `stop` once per solver iteration.
+/// An equilibrium already reached, to continue from: its force and its shape.
+#[derive(Clone, Copy, Debug)]
+pub struct Equilibrium<'a> {
+    pub force: f64,
+    pub positions: &'a [DVec3],
+}
+
+/// The start of the solver at `force`: the last equilibrium, or the straight line through the
+/// last two extrapolated to `force` (a predictor in the force).
+fn predict(before: &[Equilibrium], force: f64, out: &mut [DVec3]) -> bool {
+    let [.., a, b] = before else {
+        return false;
+    };
+    let span = b.force - a.force;
+    if span <= 0.0 || !span.is_finite() {
+        return false;
+    }
+    let w = (force - b.force) / span;
+    for ((o, xa), xb) in out.iter_mut().zip(a.positions).zip(b.positions) {
+        *o = *xb + (*xb - *xa) * w;
+    }
+    true
+}
+
+/// Like [`stretch`], but continuing from `before`: the last one or two equilibria reached
+/// (oldest first; empty to start from `rest`), and polling `stop` once per solver iteration.
 /// When `stop` returns true the force in progress is abandoned and the equilibria reached so far
-/// are returned (fewer than `opts.forces`). The loaded vertices and the solver's first step come
-/// from `rest`, and the solver's memory starts empty at every force, so a run split into parts
-/// gives the same equilibria, bit for bit, as one run.
+/// are returned (fewer than `opts.forces`). Each force starts from the line through the last two
+/// equilibria extrapolated to it (or from the last equilibrium when only one is known, or when
+/// the extrapolated shape has the higher energy or is invalid). The loaded vertices and the
+/// solver's first step come from `rest`, and the solver's memory starts empty at every force, so
+/// a run split into parts, each given the last two equilibria, gives the same equilibria, bit
+/// for bit, as one run. Forces are evaluated in parallel ([`MembraneModel::add_forces_parallel`]):
+/// the result does not depend on the number of threads.
 pub fn stretch_from(
     model: &MembraneModel,
     rest: &[DVec3],
-    start: &[DVec3],
+    before: &[Equilibrium],
     opts: &StretchOptions,
     stop: impl Fn() -> bool,
     mut observer: impl FnMut(&StretchPoint),
@@ -112,39 +141,68 @@ pub fn stretch_from(
     if !(opts.end_fraction > 0.0 && opts.end_fraction < 0.5) {
         return Err(StretchError::BadFraction(opts.end_fraction));
     }
-    if start.len() != rest.len() {
+    if let Some(e) = before.iter().find(|e| e.positions.len() != rest.len()) {
         return Err(StretchError::StartLength {
-            start: start.len(),
+            start: e.positions.len(),
             rest: rest.len(),
         });
     }
     let (high, low) = loaded_vertices(rest, opts.end_fraction);
-    let mut x = start.to_vec();
+    // the last two equilibria (oldest first), owned
+    let mut history: Vec<(f64, Vec<DVec3>)> = before
+        .iter()
+        .rev()
+        .take(2)
+        .rev()
+        .map(|e| (e.force, e.positions.to_vec()))
+        .collect();
+    let mut x = history.last().map_or_else(|| rest.to_vec(), |h| h.1.clone());
+    let mut x_pred = vec![DVec3::ZERO; rest.len()];
     let mut out = Vec::with_capacity(opts.forces.len());
     let (d0, _) = diameters(rest);
     // the first step of a fresh L-BFGS memory moves no vertex more than 1e-4 cell diameters
     let mut solver = Lbfgs::new(rest.len(), 10, 1e-4 * d0);
+    let mut ws = model.workspace();
+    let mut ext = vec![DVec3::ZERO; rest.len()];
     for &force in &opts.forces {
         if stop() {
             // also between forces: a force already in equilibrium takes no solver iteration
             return Ok(out);
         }
         let per_vertex = force / high.len() as f64;
-        let mut ext = vec![DVec3::ZERO; rest.len()];
+        ext.iter_mut().for_each(|e| *e = DVec3::ZERO);
         for &i in &high {
             ext[i].x += per_vertex;
         }
         for &i in &low {
             ext[i].x -= per_vertex;
         }
-        let objective = |x: &[DVec3], g: &mut [DVec3]| -> Result<f64, ForceError> {
-            g.iter_mut().zip(&ext).for_each(|(gi, e)| *gi = *e);
-            let e = model.add_forces(x, g)?;
-            let work: f64 = x.iter().zip(&ext).map(|(xi, ei)| xi.dot(*ei)).sum();
+        let ext = &ext;
+        let mut objective = |x: &[DVec3], g: &mut [DVec3]| -> Result<f64, ForceError> {
+            g.iter_mut().zip(ext).for_each(|(gi, e)| *gi = *e);
+            let e = model.add_forces_parallel(x, g, &mut ws)?;
+            let work: f64 = x.iter().zip(ext).map(|(xi, ei)| xi.dot(*ei)).sum();
             // gradient = −(membrane force + external force)
             g.iter_mut().for_each(|gi| *gi = -*gi);
             Ok(e.total() - work)
         };
+        let views: Vec<Equilibrium> = history
+            .iter()
+            .map(|(f, p)| Equilibrium {
+                force: *f,
+                positions: p,
+            })
+            .collect();
+        if predict(&views, force, &mut x_pred) {
+            // keep the prediction only where it lowers the energy (the gradient is recomputed)
+            let g = &mut solver.g;
+            let e_last = objective(&x, g).map_err(|source| StretchError::Force { force, source })?;
+            if let Ok(e_pred) = objective(&x_pred, g) {
+                if e_pred < e_last {
+                    x.copy_from_slice(&x_pred);
+                }
+            }
+        }
         let Some((iterations, residual)) = solver
             .minimize(&mut x, objective, opts.tolerance, opts.max_iterations, &stop)
             .map_err(|source| StretchError::Force { force, source })?
@@ -177,6 +235,13 @@ pub fn stretch_from(
         };
         observer(&point);
         out.push(point);
+        if history.len() == 2 {
+            let (_, mut oldest) = history.remove(0);
+            oldest.copy_from_slice(&x);
+            history.push((force, oldest));
+        } else {
+            history.push((force, x.clone()));
+        }
     }
     Ok(out)
 }
@@ -185,13 +250,23 @@ pub fn stretch_from(
 /// A trial step that overstretches a link (the WLC energy is infinite there) is shortened.
 struct Lbfgs {
     memory: usize,
-    s: VecDeque<Vec<DVec3>>,
-    y: VecDeque<Vec<DVec3>>,
+    /// The (s, y) pairs, oldest first, with ρ = 1/(s·y) and y·y.
+    pairs: VecDeque<Pair>,
     g: Vec<DVec3>,
     g_new: Vec<DVec3>,
     d: Vec<DVec3>,
     x_new: Vec<DVec3>,
     first_step: f64,
+    /// Dropped pairs, reused: no allocation per iteration.
+    spare: Vec<Pair>,
+    alphas: Vec<f64>,
+}
+
+struct Pair {
+    s: Vec<DVec3>,
+    y: Vec<DVec3>,
+    rho: f64,
+    yy: f64,
 }
 
 fn dot(a: &[DVec3], b: &[DVec3]) -> f64 {
@@ -207,14 +282,20 @@ impl Lbfgs {
         let z = vec![DVec3::ZERO; n];
         Self {
             memory,
-            s: VecDeque::new(),
-            y: VecDeque::new(),
+            pairs: VecDeque::new(),
             g: z.clone(),
             g_new: z.clone(),
             d: z.clone(),
             x_new: z,
             first_step,
+            spare: Vec::new(),
+            alphas: Vec::new(),
         }
+    }
+
+    /// Empties the memory (its buffers go to `spare`).
+    fn forget(&mut self) {
+        self.spare.extend(self.pairs.drain(..));
     }
 
     /// Minimises from `x` until max |g| < tol. Returns (iterations, final max |g|), or None
@@ -227,8 +308,7 @@ impl Lbfgs {
         max_iter: usize,
         stop: &impl Fn() -> bool,
     ) -> Result<Option<(usize, f64)>, ForceError> {
-        self.s.clear();
-        self.y.clear();
+        self.forget();
         let mut e = f(x, &mut self.g)?;
         let mut stalls = 0;
         for it in 0..max_iter {
@@ -243,13 +323,12 @@ impl Lbfgs {
             let mut gd = dot(&self.g, &self.d);
             if gd >= 0.0 {
                 // not a descent direction: restart with steepest descent
-                self.s.clear();
-                self.y.clear();
+                self.forget();
                 self.direction();
                 gd = dot(&self.g, &self.d);
             }
             // first step of a fresh memory: limit the largest move
-            let mut alpha = if self.s.is_empty() {
+            let mut alpha = if self.pairs.is_empty() {
                 (self.first_step / max_norm(&self.d).max(1e-300)).min(1.0)
             } else {
                 1.0
@@ -265,16 +344,7 @@ impl Lbfgs {
                             || (e_new - e).abs() <= 1e-14 * e.abs().max(1.0)
                                 && dot(&self.g_new, &self.d) < 0.9 * gd.abs() =>
                     {
-                        let s: Vec<DVec3> = self.d.iter().map(|d| *d * alpha).collect();
-                        let y: Vec<DVec3> = self.g_new.iter().zip(&self.g).map(|(a, b)| *a - *b).collect();
-                        if dot(&s, &y) > 1e-300 {
-                            if self.s.len() == self.memory {
-                                self.s.pop_front();
-                                self.y.pop_front();
-                            }
-                            self.s.push_back(s);
-                            self.y.push_back(y);
-                        }
+                        self.remember(alpha);
                         x.copy_from_slice(&self.x_new);
                         std::mem::swap(&mut self.g, &mut self.g_new);
                         e = e_new;
@@ -288,8 +358,7 @@ impl Lbfgs {
             if !accepted {
                 // line search failed (round-off floor): restart the memory, try again a few times
                 stalls += 1;
-                self.s.clear();
-                self.y.clear();
+                self.forget();
                 if stalls > 5 {
                     return Ok(Some((it, max_norm(&self.g))));
                 }
@@ -300,29 +369,88 @@ impl Lbfgs {
         Ok(Some((max_iter, max_norm(&self.g))))
     }
 
-    /// Two-loop recursion: d = −H g.
+    /// Stores the pair s = alpha d, y = g_new − g if s·y > 0 (dropping the oldest when full).
+    fn remember(&mut self, alpha: f64) {
+        let n = self.g.len();
+        let mut p = self.spare.pop().unwrap_or_else(|| Pair {
+            s: vec![DVec3::ZERO; n],
+            y: vec![DVec3::ZERO; n],
+            rho: 0.0,
+            yy: 0.0,
+        });
+        let (mut sy, mut yy) = (0.0, 0.0);
+        for (((s, y), d), (gn, g)) in
+            p.s.iter_mut()
+                .zip(&mut p.y)
+                .zip(&self.d)
+                .zip(self.g_new.iter().zip(&self.g))
+        {
+            *s = *d * alpha;
+            *y = *gn - *g;
+            sy += s.dot(*y);
+            yy += y.dot(*y);
+        }
+        if sy > 1e-300 {
+            (p.rho, p.yy) = (1.0 / sy, yy);
+            if self.pairs.len() == self.memory {
+                self.spare.extend(self.pairs.pop_front());
+            }
+            self.pairs.push_back(p);
+        } else {
+            self.spare.push(p);
+        }
+    }
+
+    /// Two-loop recursion: d = −H g. Each pass over the vectors also computes the dot product
+    /// the next step needs.
     fn direction(&mut self) {
-        self.d.copy_from_slice(&self.g);
-        let k = self.s.len();
-        let mut alphas = vec![0.0; k];
+        let k = self.pairs.len();
+        let d = &mut self.d;
+        if k == 0 {
+            d.iter_mut().zip(&self.g).for_each(|(d, g)| *d = -*g);
+            return;
+        }
+        let alphas = &mut self.alphas;
+        alphas.clear();
+        alphas.resize(k, 0.0);
+        d.copy_from_slice(&self.g);
+        // newest to oldest: α_i = ρ_i s_i·d, d −= α_i y_i
+        let mut sd = dot(&self.pairs[k - 1].s, d);
         for i in (0..k).rev() {
-            let rho = 1.0 / dot(&self.y[i], &self.s[i]);
-            alphas[i] = rho * dot(&self.s[i], &self.d);
-            for (d, y) in self.d.iter_mut().zip(&self.y[i]) {
-                *d -= *y * alphas[i];
+            let a = self.pairs[i].rho * sd;
+            alphas[i] = a;
+            let y = &self.pairs[i].y;
+            sd = 0.0;
+            if i > 0 {
+                for ((dj, yj), sj) in d.iter_mut().zip(y).zip(&self.pairs[i - 1].s) {
+                    *dj -= *yj * a;
+                    sd += sj.dot(*dj);
+                }
+            } else {
+                d.iter_mut().zip(y).for_each(|(dj, yj)| *dj -= *yj * a);
             }
         }
-        if k > 0 {
-            let gamma = dot(&self.s[k - 1], &self.y[k - 1]) / dot(&self.y[k - 1], &self.y[k - 1]);
-            self.d.iter_mut().for_each(|d| *d *= gamma);
+        // initial inverse Hessian γ I, γ = s·y / y·y of the newest pair
+        let last = &self.pairs[k - 1];
+        let gamma = 1.0 / (last.rho * last.yy);
+        let mut yd = 0.0;
+        for (dj, yj) in d.iter_mut().zip(&self.pairs[0].y) {
+            *dj *= gamma;
+            yd += yj.dot(*dj);
         }
+        // oldest to newest: β = ρ_i y_i·d, d += (α_i − β) s_i; the last pass also negates d
         for i in 0..k {
-            let rho = 1.0 / dot(&self.y[i], &self.s[i]);
-            let beta = rho * dot(&self.y[i], &self.d);
-            for (d, s) in self.d.iter_mut().zip(&self.s[i]) {
-                *d += *s * (alphas[i] - beta);
+            let c = alphas[i] - self.pairs[i].rho * yd;
+            let s = &self.pairs[i].s;
+            yd = 0.0;
+            if i + 1 < k {
+                for ((dj, sj), yj) in d.iter_mut().zip(s).zip(&self.pairs[i + 1].y) {
+                    *dj += *sj * c;
+                    yd += yj.dot(*dj);
+                }
+            } else {
+                d.iter_mut().zip(s).for_each(|(dj, sj)| *dj = -(*dj + *sj * c));
             }
         }
-        self.d.iter_mut().for_each(|d| *d = -*d);
     }
 }

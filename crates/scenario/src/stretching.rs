@@ -433,8 +433,8 @@ fn write_shape(w: &mut TrajectoryWriter, frame: u64, p: &StretchPoint) -> Result
     w.append_membrane_frame(frame, frame as f64, &p.positions, None, &scalars)
 }
 
-/// Saves the equilibria reached so far: their results, the last shape (the start of the next
-/// force) and the solve time. The checkpoint's step is the number of forces done.
+/// Saves the equilibria reached so far: their results, the last two shapes (the next force
+/// starts from the line through them) and the solve time. The checkpoint's step is the number of forces done.
 fn save_checkpoint(
     s: &StretchingScenario,
     ctx: &RunContext,
@@ -455,11 +455,15 @@ fn save_checkpoint(
     if let Some(last) = points.last() {
         ck.insert_vec3("positions", &last.positions);
     }
+    if let [.., before, _] = points {
+        ck.insert_vec3("previous_positions", &before.positions);
+    }
     ck.save_atomic(ctx.out_dir.join(crate::fluid::CHECKPOINT_FILE))
         .map_err(out_err)
 }
 
-/// The equilibria a checkpoint holds (the last one with its shape) and the solve time so far.
+/// The equilibria a checkpoint holds (the last two with their shapes; a checkpoint written
+/// before the shape of the one before the last was kept has only the last) and the solve time so far.
 fn restore(ck: &Checkpoint, vertices: usize) -> Result<(Vec<StretchPoint>, f64), RunError> {
     let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
     let mut points: Vec<StretchPoint> = serde_json::from_slice(ck.u8s("points_json").map_err(bad)?)
@@ -473,6 +477,10 @@ fn restore(ck: &Checkpoint, vertices: usize) -> Result<(Vec<StretchPoint>, f64),
     }
     if let Some(last) = points.last_mut() {
         last.positions = ck.vec3s("positions", Some(vertices)).map_err(bad)?;
+    }
+    let n = points.len();
+    if n >= 2 && ck.array("previous_positions").is_ok() {
+        points[n - 2].positions = ck.vec3s("previous_positions", Some(vertices)).map_err(bad)?;
     }
     Ok((points, ck.scalar_f64("solve_seconds").map_err(bad)?))
 }
@@ -523,7 +531,7 @@ pub fn run_from(
         w.set_membrane_reference(prepared.model.area0(), prepared.model.volume0())
             .map_err(out_err)?;
         for (k, p) in points.iter().enumerate() {
-            // resumed without the shapes file: only the last shape is known
+            // resumed without the shapes file: only the last two shapes are known
             if !p.positions.is_empty() {
                 write_shape(&mut w, k as u64, p).map_err(out_err)?;
             }
@@ -536,9 +544,6 @@ pub fn run_from(
         tolerance: s.stretching.tolerance_pn,
         max_iterations: s.stretching.max_iterations as usize,
     };
-    let start = points
-        .last()
-        .map_or(prepared.mesh.vertices.clone(), |p| p.positions.clone());
     let completed = std::cell::Cell::new(done);
     let failed = std::cell::Cell::new(false);
     let stop = || {
@@ -547,9 +552,24 @@ pub fn run_from(
             || ctx.stop_at_step == Some(completed.get() as u64)
     };
     let mut step_error = None;
-    // the checkpoint keeps only the last shape: earlier equilibria are saved without positions
-    let mut saved: Vec<StretchPoint> = points.iter().map(without_positions).collect();
-    let new_points = stretch::stretch_from(&prepared.model, &prepared.mesh.vertices, &start, &opts, stop, |p| {
+    // the last two equilibria with a shape (forces from the protocol, as in one uninterrupted run)
+    let before: Vec<stretch::Equilibrium> = points
+        .iter()
+        .enumerate()
+        .skip(done.saturating_sub(2))
+        .filter(|(_, p)| !p.positions.is_empty())
+        .map(|(k, p)| stretch::Equilibrium {
+            force: s.stretching.forces_pn[k],
+            positions: &p.positions,
+        })
+        .collect();
+    // the checkpoint keeps only the last two shapes: earlier equilibria are saved without positions
+    let mut saved: Vec<StretchPoint> = points
+        .iter()
+        .enumerate()
+        .map(|(k, p)| if k + 2 >= done { p.clone() } else { without_positions(p) })
+        .collect();
+    let new_points = stretch::stretch_from(&prepared.model, &prepared.mesh.vertices, &before, &opts, stop, |p| {
         if ctx.progress {
             eprintln!(
                 "  F = {:7.2} pN  D_A = {:6.3} µm  D_T = {:6.3} µm  ({} iterations, residual {:.1e} pN)",
@@ -573,8 +593,8 @@ pub fn run_from(
             failed.set(true);
             return;
         }
-        if let Some(last) = saved.last_mut() {
-            last.positions = Vec::new();
+        if let [.., before, _] = saved.as_mut_slice() {
+            before.positions = Vec::new();
         }
         completed.set(k + 1);
     })?;

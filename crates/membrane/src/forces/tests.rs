@@ -1002,8 +1002,8 @@ fn stress_free_on_generated_meshes() {
     }
 }
 
-/// A stretching run split in two (the second part starting from the first part's last
-/// equilibrium) gives the same equilibria bit for bit as one run, and a stop request abandons
+/// A stretching run split in two (the second part continuing from the first part's last two
+/// equilibria) gives the same equilibria bit for bit as one run, and a stop request abandons
 /// the force in progress and returns the equilibria reached so far.
 #[test]
 fn stretching_split_in_two_is_bit_identical() {
@@ -1019,10 +1019,16 @@ fn stretching_split_in_two_is_bit_identical() {
     };
     let whole = crate::stretch::stretch(&model, &x, &opts(&[0.0, 60.0, 120.0, 180.0]), |_| {}).unwrap();
     let first = crate::stretch::stretch(&model, &x, &opts(&[0.0, 60.0]), |_| {}).unwrap();
+    fn eq(p: &crate::stretch::StretchPoint) -> crate::stretch::Equilibrium<'_> {
+        crate::stretch::Equilibrium {
+            force: p.force,
+            positions: &p.positions,
+        }
+    }
     let second = crate::stretch::stretch_from(
         &model,
         &x,
-        &first[1].positions,
+        &[eq(&first[0]), eq(&first[1])],
         &opts(&[120.0, 180.0]),
         || false,
         |_| {},
@@ -1036,7 +1042,7 @@ fn stretching_split_in_two_is_bit_identical() {
     let stopped = crate::stretch::stretch_from(
         &model,
         &x,
-        &x,
+        &[],
         &opts(&[0.0, 60.0, 120.0]),
         || {
             polls.set(polls.get() + 1);
@@ -1047,5 +1053,68 @@ fn stretching_split_in_two_is_bit_identical() {
     .unwrap();
     assert_eq!(stopped.len(), 1);
     assert_eq!(stopped[0], whole[0]);
-    assert!(crate::stretch::stretch_from(&model, &x, &x[1..], &opts(&[0.0]), || false, |_| {}).is_err());
+    let short = crate::stretch::Equilibrium {
+        force: 0.0,
+        positions: &x[1..],
+    };
+    assert!(crate::stretch::stretch_from(&model, &x, &[short], &opts(&[0.0]), || false, |_| {}).is_err());
+}
+
+/// The stretching model of the golden N = 500 mesh (stress-free, default k_a and k_v).
+fn stretching_model() -> (MembraneModel, Vec<DVec3>) {
+    let (topo, x, _, _) = golden();
+    let params = ModelParams::coarse_grained(500, 300.0).unwrap();
+    let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2);
+    (
+        MembraneModel::new(&topo, &x, &c, ReferenceState::StressFree).unwrap(),
+        x,
+    )
+}
+
+/// The solver at the shipped tolerance (1e-4 pN, with the force predictor) gives the diameters
+/// of a run converged 1000 times tighter to 1e-3 µm (the accuracy the speed work must keep).
+#[test]
+fn stretching_diameters_are_converged_to_1e_3_um() {
+    let (model, x) = stretching_model();
+    let opts = |tolerance: f64| crate::stretch::StretchOptions {
+        forces: vec![0.0, 30.0, 60.0, 120.0, 200.0],
+        end_fraction: 0.05,
+        tolerance,
+        max_iterations: 200_000,
+    };
+    let fast = crate::stretch::stretch(&model, &x, &opts(1e-4), |_| {}).unwrap();
+    let tight = crate::stretch::stretch(&model, &x, &opts(1e-7), |_| {}).unwrap();
+    for (f, t) in fast.iter().zip(&tight) {
+        let (da, dt) = (
+            f.axial_diameter - t.axial_diameter,
+            f.transverse_diameter - t.transverse_diameter,
+        );
+        assert!(
+            da.abs() < 1e-3 && dt.abs() < 1e-3,
+            "F = {}: D_A off by {da:.1e}, D_T by {dt:.1e} µm",
+            f.force
+        );
+    }
+}
+
+/// Stretching with 1 and with 2 threads gives the same equilibria bit for bit (the parallel
+/// force evaluation has a fixed partition and summation order).
+#[test]
+fn stretching_is_bit_identical_for_any_thread_count() {
+    let (model, x) = stretching_model();
+    let opts = crate::stretch::StretchOptions {
+        forces: vec![0.0, 50.0, 100.0],
+        end_fraction: 0.05,
+        tolerance: 1e-4,
+        max_iterations: 200_000,
+    };
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| crate::stretch::stretch(&model, &x, &opts, |_| {}).unwrap())
+    };
+    let (one, two) = (run(1), run(2));
+    assert_eq!(one, two);
+    for (a, b) in one.iter().zip(&two) {
+        assert_eq!(a.positions, b.positions);
+    }
 }
