@@ -53,6 +53,7 @@ impl PairKernel for DpdLinear {
         self.rc2
     }
 
+    #[inline(always)]
     fn noisy(&self) -> bool {
         self.rc2 > 0.0 && self.sigma_dt != 0.0
     }
@@ -102,6 +103,7 @@ impl PairKernel for DpdGeneral {
         self.rc2
     }
 
+    #[inline(always)]
     fn noisy(&self) -> bool {
         self.rc2 > 0.0 && self.sigma_dt != 0.0
     }
@@ -114,6 +116,57 @@ impl PairKernel for DpdGeneral {
         let wr = w.powf(self.s);
         let edv = dr.dot(dv) * inv_r;
         let mag = self.a * w - self.gamma * wr * wr * edv + self.sigma_dt * wr * xi;
+        dr * (mag * inv_r)
+    }
+}
+
+/// Groot–Warren DPD with s = ¼ (the capillary and shear fluid, [`crate::PairParams::capillary`]):
+/// w^R = (1 − r/rc)^¼ = √√w and w^D = √w, two square roots instead of a `powf`. Agrees with
+/// [`DpdGeneral`] at s = ¼ to round-off (not bit for bit).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DpdQuarter {
+    rc2: Real,
+    inv_rc: Real,
+    a: Real,
+    gamma: Real,
+    sigma_dt: Real,
+}
+
+impl DpdQuarter {
+    /// From pair parameters (their s is taken to be ¼) and the time step.
+    pub fn new(p: &PairParams, dt: Real, enabled: bool) -> Self {
+        let l = DpdLinear::new(p, dt, enabled);
+        Self {
+            rc2: l.rc2,
+            inv_rc: l.inv_rc,
+            a: l.a,
+            gamma: l.gamma,
+            sigma_dt: l.sigma_dt,
+        }
+    }
+}
+
+impl PairKernel for DpdQuarter {
+    #[inline(always)]
+    fn cutoff2(&self) -> Real {
+        self.rc2
+    }
+
+    #[inline(always)]
+    fn noisy(&self) -> bool {
+        self.rc2 > 0.0 && self.sigma_dt != 0.0
+    }
+
+    #[inline(always)]
+    fn force(&self, dr: DVec3, r2: Real, dv: DVec3, xi: Real) -> DVec3 {
+        let r = r2.sqrt();
+        let inv_r = 1.0 / r;
+        // ≥ 0: r² < rc² can still round to r = rc
+        let w = (1.0 - r * self.inv_rc).max(0.0);
+        let wd = w.sqrt();
+        let wr = wd.sqrt();
+        let edv = dr.dot(dv) * inv_r;
+        let mag = self.a * w - self.gamma * wd * edv + self.sigma_dt * wr * xi;
         dr * (mag * inv_r)
     }
 }
@@ -183,7 +236,9 @@ impl<K: PairKernel> KernelTable<K> {
 pub enum DpdTable {
     /// Every pair has s = 1.
     Linear(KernelTable<DpdLinear>),
-    /// Some pair has s ≠ 1.
+    /// Every interacting pair has s = ¼.
+    Quarter(KernelTable<DpdQuarter>),
+    /// Any other mix of exponents.
     General(KernelTable<DpdGeneral>),
 }
 
@@ -193,10 +248,17 @@ impl DpdTable {
         let nt = field.ntypes();
         let types = field.types();
         let enabled = |i: usize, j: usize| !(types[i].frozen && types[j].frozen);
-        let all_linear = (0..nt).all(|i| (0..nt).all(|j| field.pair(i, j).s == 1.0));
-        if all_linear {
+        // only pairs that interact count: a disabled pair never reaches the kernel
+        let all_s = |s: Real| {
+            (0..nt).all(|i| (0..nt).all(|j| !(enabled(i, j) && field.pair(i, j).rc > 0.0) || field.pair(i, j).s == s))
+        };
+        if all_s(1.0) {
             DpdTable::Linear(KernelTable::from_fn(nt, |i, j| {
                 DpdLinear::new(field.pair(i, j), dt, enabled(i, j))
+            }))
+        } else if all_s(0.25) {
+            DpdTable::Quarter(KernelTable::from_fn(nt, |i, j| {
+                DpdQuarter::new(field.pair(i, j), dt, enabled(i, j))
             }))
         } else {
             DpdTable::General(KernelTable::from_fn(nt, |i, j| {
@@ -229,6 +291,7 @@ mod tests {
         let u = |r: Real| 0.5 * p.a * p.rc * (1.0 - r / p.rc).powi(2);
         let lin = DpdLinear::new(&p, 0.01, true);
         let gen = DpdGeneral::new(&params(25.0, 0.0, 0.5), 0.01, true);
+        let quarter = DpdQuarter::new(&params(25.0, 0.0, 0.25), 0.01, true);
         let dir = DVec3::new(0.3, -0.5, 0.8).normalize();
         for &r in &[0.05, 0.3, 0.7, 1.0, 1.25, 1.29] {
             let h = 1e-5;
@@ -237,6 +300,7 @@ mod tests {
             for f in [
                 lin.force(dr, dr.length_squared(), DVec3::ZERO, 0.0),
                 gen.force(dr, dr.length_squared(), DVec3::ZERO, 0.0),
+                quarter.force(dr, dr.length_squared(), DVec3::ZERO, 0.0),
             ] {
                 // force along +e (repulsive) with magnitude −dU/dr
                 let along = f.dot(dir);
@@ -264,8 +328,39 @@ mod tests {
                 let fij = lin.force(dr, dr.length_squared(), dv, xi);
                 let fji = lin.force(-dr, dr.length_squared(), -dv, xi);
                 assert_eq!(fij, -fji);
+                let q = DpdQuarter::new(&p, 0.01, true);
+                assert_eq!(q.force(dr, dr.length_squared(), dv, xi), -q.force(-dr, dr.length_squared(), -dv, xi));
             }
         }
+    }
+
+    /// The s = ¼ specialisation agrees with the general kernel at s = ¼ to round-off (√√w against
+    /// powf(w, ¼)), in all three parts, over the whole range of r; and the table picks it when
+    /// every interacting pair has s = ¼ (a disabled pair's s does not matter).
+    #[test]
+    fn quarter_matches_general() {
+        let p = params(25.0, 120.0, 0.25);
+        let q = DpdQuarter::new(&p, 0.0025, true);
+        let gen = DpdGeneral::new(&p, 0.0025, true);
+        let dir = DVec3::new(0.31, -0.47, 0.22).normalize();
+        let dv = DVec3::new(1.3, 0.2, -0.9);
+        for &r in &[0.01, 0.2, 0.5, 0.9, 1.2, 1.2999] {
+            let dr = dir * r;
+            for xi in [-1.7, 0.0, 0.93] {
+                let a = q.force(dr, dr.length_squared(), dv, xi);
+                let b = gen.force(dr, dr.length_squared(), dv, xi);
+                assert!((a - b).length() <= 1e-12 * b.length().max(1e-12), "r {r}: {a} vs {b}");
+            }
+        }
+        let mut field = crate::ForceField::new(
+            vec![crate::TypeSpec::new("fluid"), crate::TypeSpec::frozen("wall")],
+            crate::PairParams::capillary(),
+        )
+        .unwrap();
+        field.set_pair(1, 1, crate::PairParams::none()).unwrap();
+        assert!(matches!(DpdTable::new(&field, 0.0025), DpdTable::Quarter(_)));
+        field.set_pair(0, 1, params(25.0, 4.5, 1.0)).unwrap();
+        assert!(matches!(DpdTable::new(&field, 0.0025), DpdTable::General(_)));
     }
 
     /// The s = 1 specialisation agrees with the general kernel at s = 1 (to round-off, since

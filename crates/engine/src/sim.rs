@@ -403,6 +403,7 @@ impl<E: Extension> Simulation<E> {
         let (scheme, cells, sforce) = (self.config.scheme, &self.cells, &mut self.sforce);
         let w = match &self.table {
             DpdTable::Linear(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
+            DpdTable::Quarter(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
             DpdTable::General(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
         };
         // Scatter back to storage order (a parallel gather through the inverse permutation),
