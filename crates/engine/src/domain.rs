@@ -121,7 +121,7 @@ impl PeriodicBox {
         let mut x = p.x;
         let mut k = 0;
         if y != p.y {
-            k = ((p.y - y) / l.y).round() as i32;
+            k = round((p.y - y) / l.y) as i32;
             if self.shear_velocity != 0.0 {
                 x -= k as Real * self.offset;
             }
@@ -142,12 +142,33 @@ impl PeriodicBox {
     pub fn min_image_sheared(&self, a: DVec3, b: DVec3) -> (DVec3, i32) {
         let mut d = a - b;
         let l = self.lengths;
-        let ky = (d.y / l.y).round();
+        let ky = round(d.y / l.y);
         d.y -= l.y * ky;
         d.x -= ky * self.offset;
-        d.x -= l.x * (d.x / l.x).round();
-        d.z -= l.z * (d.z / l.z).round();
+        d.x -= l.x * round(d.x / l.x);
+        d.z -= l.z * round(d.z / l.z);
         (d, ky as i32)
+    }
+}
+
+/// `v.round()` (half away from zero), bit for bit, without the library call that `round` is on
+/// baseline x86-64 (no SSE4.1): a truncating conversion and a correction by the exact remainder.
+#[inline(always)]
+pub(crate) fn round(v: Real) -> Real {
+    // 2^52: from here on every f64 is an integer; NaN and ±∞ fail the test and pass through
+    if !(v.abs() < 4_503_599_627_370_496.0) {
+        return v;
+    }
+    let t = (v as i64) as Real; // toward zero, exact
+    let frac = v - t; // exact: |frac| < 1 and t has v's sign
+    if frac >= 0.5 {
+        t + 1.0
+    } else if frac <= -0.5 {
+        t - 1.0
+    } else if t == 0.0 {
+        0.0_f64.copysign(v) // keeps −0.0 as `round` does
+    } else {
+        t
     }
 }
 
@@ -173,6 +194,28 @@ pub(crate) fn wrap1(x: Real, l: Real) -> Real {
 
 #[cfg(test)]
 mod tests {
+    /// The fast `round` equals `f64::round` bit for bit: halves, near-halves, signs, zeros,
+    /// integers, huge values, ±∞ and NaN, and a million random values over many magnitudes.
+    #[test]
+    fn fast_round_is_round() {
+        let mut special = vec![
+            0.0, -0.0, 0.5, -0.5, 1.5, -1.5, 2.5, 0.49999999999999994, -0.49999999999999994,
+            0.5000000000000001, 1e-300, -1e-300, 4503599627370495.5, 4503599627370496.0, 9.3e18,
+            -9.3e18, 1e300, f64::INFINITY, f64::NEG_INFINITY, f64::MAX, f64::MIN,
+        ];
+        let mut x: u64 = 0x9E37_79B9_7F4A_7C15;
+        for _ in 0..1_000_000 {
+            x = crate::rng::mix64(x);
+            let mag = 10f64.powi((x % 40) as i32 - 20);
+            let u = (x >> 11) as f64 / (1u64 << 53) as f64;
+            special.push((2.0 * u - 1.0) * mag);
+        }
+        for v in special {
+            assert_eq!(super::round(v).to_bits(), v.round().to_bits(), "{v:e}");
+        }
+        assert!(super::round(f64::NAN).is_nan());
+    }
+
     use super::*;
 
     #[test]
