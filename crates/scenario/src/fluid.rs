@@ -172,6 +172,9 @@ fn config_and_field(s: &FluidScenario) -> (SimConfig, ForceField) {
         s.seed,
     );
     config.lambda = s.run.lambda;
+    // A plain fluid can have its storage kept in cell order: 4–13 % faster (docs/performance.md).
+    // Frames are written in id order, so the output does not see it.
+    config.sort_every = 100;
     let field = ForceField::single(PairParams {
         a: f.a,
         gamma: f.gamma,
