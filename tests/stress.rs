@@ -35,7 +35,10 @@ fn scenario(file: &str, sets: &[&str]) -> Outcome {
 
 /// A diagnostic names the step and a likely cause (and, from the engine, the particle).
 fn assert_diagnostic(m: &str) {
-    assert!(m.contains("step") && m.contains("likely cause"), "not a diagnostic: {m}");
+    assert!(
+        m.contains("step") && m.contains("likely cause"),
+        "not a diagnostic: {m}"
+    );
     assert!(!m.to_lowercase().contains("panic"), "{m}");
 }
 
@@ -120,7 +123,12 @@ fn capillary_at_the_largest_pressure_gradient_is_finite_or_a_diagnostic() {
             let steps = num(&r["performance"]["steps"]);
             assert!((100.0..5000.0).contains(&steps), "{steps} steps");
             let d = &r["driven"];
-            for k in ["cell_velocity_m_per_s", "deformation_index", "axial_length_um", "membrane_temperature_ratio"] {
+            for k in [
+                "cell_velocity_m_per_s",
+                "deformation_index",
+                "axial_length_um",
+                "membrane_temperature_ratio",
+            ] {
                 assert!(num(&d[k]).is_finite(), "{k}: {d}");
             }
             assert_eq!(r["crossings"]["misplaced_total"], 0);
@@ -163,10 +171,22 @@ fn perturbed_cell(kick: f64, stiff: [f64; 3], seed: u64) -> Result<Simulation<Ce
     let config = SimConfig::new(DVec3::splat(l), 0.002, seed);
     let fluid = PairParams::groot_warren();
     let mut field = ForceField::new(
-        vec![TypeSpec::new("outer"), TypeSpec::new("inner"), TypeSpec::new("membrane")],
+        vec![
+            TypeSpec::new("outer"),
+            TypeSpec::new("inner"),
+            TypeSpec::new("membrane"),
+        ],
         fluid,
     )?;
-    field.set_pair(OUTER as usize, INNER as usize, PairParams { gamma: 0.0, kbt: 0.0, ..fluid })?;
+    field.set_pair(
+        OUTER as usize,
+        INNER as usize,
+        PairParams {
+            gamma: 0.0,
+            kbt: 0.0,
+            ..fluid
+        },
+    )?;
     let fsi = PairParams { a: 0.0, ..fluid };
     field.set_pair(OUTER as usize, MEMBRANE as usize, fsi)?;
     field.set_pair(INNER as usize, MEMBRANE as usize, fsi)?;
@@ -203,11 +223,16 @@ fn stress_cell(kick: f64, stiff: [f64; 3], steps: u64) -> Result<(f64, f64, f64)
     let mut sim = perturbed_cell(kick, stiff, 7).map_err(|e| e.to_string())?;
     let (a0, v0) = {
         let c = sim.extension();
-        c.model().area_volume(&initial_mesh(&EvansFung::healthy_um(), 300, 3).unwrap().vertices).unwrap()
+        c.model()
+            .area_volume(&initial_mesh(&EvansFung::healthy_um(), 300, 3).unwrap().vertices)
+            .unwrap()
     };
     sim.run(steps).map_err(|e| e.to_string())?;
     let c = sim.extension();
-    assert!(c.vertices().iter().all(|v| v.is_finite()), "a stable run has a non-finite vertex");
+    assert!(
+        c.vertices().iter().all(|v| v.is_finite()),
+        "a stable run has a non-finite vertex"
+    );
     let (a, v) = c.model().area_volume(c.vertices()).map_err(|e| e.to_string())?;
     let r = c.vertex_range();
     let vel = &sim.particles().vel[r.clone()];
@@ -229,7 +254,10 @@ fn perturbed_shapes_relax_or_stop_with_a_diagnostic() {
     for kick in [0.1, 0.3] {
         let (da, dv, kbt) = stress_cell(kick, [1.0; 3], 300).unwrap_or_else(|e| panic!("δ = {kick}: {e}"));
         eprintln!("δ = {kick}: area {da:+.4}, volume {dv:+.4}, vertex kBT {kbt:.3}");
-        assert!(da.abs() < 0.05 && dv.abs() < 0.1 && kbt > 0.3 && kbt < 50.0, "δ = {kick}");
+        assert!(
+            da.abs() < 0.05 && dv.abs() < 0.1 && kbt > 0.3 && kbt < 50.0,
+            "δ = {kick}"
+        );
     }
     match stress_cell(2.0, [1.0; 3], 300) {
         Ok(r) => panic!("δ = 2 ran: {r:?}"),
@@ -264,7 +292,10 @@ fn stiff_membranes_stay_stable_or_stop_with_a_diagnostic() {
         Ok(r) => panic!("×1e4 ran: {r:?}"),
         Err(m) => {
             eprintln!("×1e4: {m}");
-            assert!(m.contains("step") && (m.contains("likely cause") || m.contains("membrane")), "{m}");
+            assert!(
+                m.contains("step") && (m.contains("likely cause") || m.contains("membrane")),
+                "{m}"
+            );
         }
     }
 }

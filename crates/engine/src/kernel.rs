@@ -329,7 +329,10 @@ mod tests {
                 let fji = lin.force(-dr, dr.length_squared(), -dv, xi);
                 assert_eq!(fij, -fji);
                 let q = DpdQuarter::new(&p, 0.01, true);
-                assert_eq!(q.force(dr, dr.length_squared(), dv, xi), -q.force(-dr, dr.length_squared(), -dv, xi));
+                assert_eq!(
+                    q.force(dr, dr.length_squared(), dv, xi),
+                    -q.force(-dr, dr.length_squared(), -dv, xi)
+                );
             }
         }
     }

@@ -201,7 +201,11 @@ fn pair_force<K: PairKernel, const ONE: bool>(
 ) -> DVec3 {
     let kern = if ONE { row[0] } else { row[cl.ptype[j] as usize] };
     // no hash for a pair without a random force (e.g. the repulsion-only plasma–cytosol pairs)
-    let xi = if noise && kern.noisy() { pair_xi(key, idi, cl.id[j]) } else { 0.0 };
+    let xi = if noise && kern.noisy() {
+        pair_xi(key, idi, cl.id[j])
+    } else {
+        0.0
+    };
     kern.force(dr, r2, (vi - cl.vel[j]) - dv_shift, xi)
 }
 

@@ -322,13 +322,16 @@ impl NearBox {
             let (l, m) = (self.lengths[a], d[a].abs() + 1e-9 * self.lengths[a]);
             // offset of p past (lo − m), brought into [0, L): p and lo are in [0, L), m ≪ L
             let mut q = p[a] - self.lo[a] + m;
-            while q < 0.0 {
+            if q < 0.0 {
                 q += l;
-            }
-            while q >= l {
+            } else if q >= l {
                 q -= l;
             }
-            if !(q <= self.width[a] + 2.0 * m) {
+            if !(0.0..l).contains(&q) {
+                q = q.rem_euclid(l); // far out (not reached with |d| ≤ a cell); NaN stays NaN
+            }
+            // (NaN passes on to the exact test)
+            if q > self.width[a] + 2.0 * m {
                 return false;
             }
         }
@@ -1074,7 +1077,7 @@ impl Extension for Cell {
             self.timers.viscosity_s += t0.elapsed().as_secs_f64();
         }
         let every = self.config.check_every;
-        if every > 0 && s.step % every == 0 {
+        if every > 0 && s.step.is_multiple_of(every) {
             let t0 = Instant::now();
             let (tested, wrong) = self.count_misplaced(s.pos, s.ptype, s.domain);
             self.stats.checks += 1;

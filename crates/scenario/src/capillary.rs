@@ -1458,7 +1458,7 @@ impl Stepper for Run<'_> {
         let step = self.sim.step_count();
         let plan = self.plan;
         let done_in_stage = step - self.st.stage_start;
-        if step % plan.s.output.sample_every_steps == 0 {
+        if step.is_multiple_of(plan.s.output.sample_every_steps) {
             let t_obs = std::time::Instant::now();
             let t = done_in_stage as f64 * plan.dt;
             let smp = observe(plan, &self.sim, &self.profile, self.st.stage, t, self.st.body_force);
@@ -1474,7 +1474,7 @@ impl Stepper for Run<'_> {
             self.output_s += t_obs.elapsed().as_secs_f64();
         }
         let stage_over = done_in_stage >= plan.stage_steps[self.st.stage];
-        let steady = step % plan.s.output.sample_every_steps == 0 && self.steady();
+        let steady = step.is_multiple_of(plan.s.output.sample_every_steps) && self.steady();
         if stage_over || steady {
             self.st.stage_ends.push((done_in_stage, steady));
             self.st.stage += 1;
@@ -1490,7 +1490,7 @@ impl Stepper for Run<'_> {
 
     fn frame_due(&self) -> bool {
         let every = self.plan.frame_every;
-        every > 0 && self.sim.step_count() % every == 0
+        every > 0 && self.sim.step_count().is_multiple_of(every)
     }
 
     fn write_frame(&mut self) -> Result<(), RunError> {

@@ -59,7 +59,7 @@ pub fn drive(s: &mut impl Stepper, ctx: &RunContext, resumed: bool, checkpoint_e
             if s.frame_due() {
                 s.write_frame()?;
             }
-            if checkpoint_every > 0 && step > start && step % checkpoint_every == 0 && !s.finished() {
+            if checkpoint_every > 0 && step > start && step.is_multiple_of(checkpoint_every) && !s.finished() {
                 s.save_checkpoint(ctx)?;
             }
         }
@@ -79,7 +79,7 @@ pub fn drive(s: &mut impl Stepper, ctx: &RunContext, resumed: bool, checkpoint_e
             });
         }
         s.advance()?;
-        if s.step_count() % report_every == 0 {
+        if s.step_count().is_multiple_of(report_every) {
             progress.update(s.step_count(), s.time());
         }
     }

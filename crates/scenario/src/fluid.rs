@@ -214,7 +214,7 @@ pub fn model_units() -> UnitSystem {
 fn frame_due(s: &FluidScenario, step: u64) -> bool {
     let every = s.output.trajectory_every_steps;
     let eq = s.run.equilibration_steps;
-    every > 0 && step >= eq && (step - eq) % every == 0
+    every > 0 && step >= eq && (step - eq).is_multiple_of(every)
 }
 
 /// The last scheduled frame step at or before `step`, if any.
@@ -404,7 +404,7 @@ impl Stepper for Run<'_> {
         if step == eq {
             self.clock = Instant::now();
         }
-        let sample = step >= eq && (step - eq) % self.s.run.sample_every == 0;
+        let sample = step >= eq && (step - eq).is_multiple_of(self.s.run.sample_every);
         if sample {
             let virial = sim.step_with_virial().map_err(engine_err)?;
             series

@@ -820,7 +820,7 @@ impl Stepper for Run<'_> {
 
     fn advance(&mut self) -> Result<(), RunError> {
         self.sim.step().map_err(describe_engine_error)?;
-        if self.sim.step_count() % self.plan.sample_every == 0 {
+        if self.sim.step_count().is_multiple_of(self.plan.sample_every) {
             let t0 = std::time::Instant::now();
             self.sample()?;
             self.output_s += t0.elapsed().as_secs_f64();
@@ -830,7 +830,7 @@ impl Stepper for Run<'_> {
 
     fn frame_due(&self) -> bool {
         let every = self.plan.frame_every;
-        every > 0 && self.sim.step_count() % every == 0
+        every > 0 && self.sim.step_count().is_multiple_of(every)
     }
 
     fn write_frame(&mut self) -> Result<(), RunError> {

@@ -7,7 +7,7 @@ use hemodpd_io::{RunMetadata, UnitSystem};
 /// A UV sphere of radius 1: poles on ±z, `n_lat` (even) latitude bands so the equator is a ring,
 /// `n_lon` (multiple of 4) longitudes so the ±x and ±y tips are vertices. Outward triangles.
 pub fn uv_sphere(n_lat: usize, n_lon: usize) -> (Vec<DVec3>, Vec<[u32; 3]>) {
-    assert!(n_lat % 2 == 0 && n_lon % 4 == 0);
+    assert!(n_lat.is_multiple_of(2) && n_lon.is_multiple_of(4));
     let mut v = vec![DVec3::Z];
     for i in 1..n_lat {
         let th = std::f64::consts::PI * i as f64 / n_lat as f64;

@@ -1014,5 +1014,8 @@ fn near_box_prefilter_is_conservative() {
     }
     // enough accepted segments to exercise the check (821 with this seed); and it must reject
     // most particles (4964 of 400 000 pass), or it would be pointless
-    assert!(accepted >= 100 && prefiltered < 200 * 2000 / 10, "{accepted} exact, {prefiltered} passed");
+    assert!(
+        accepted >= 100 && prefiltered < 200 * 2000 / 10,
+        "{accepted} exact, {prefiltered} passed"
+    );
 }

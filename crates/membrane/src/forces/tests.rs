@@ -601,7 +601,7 @@ struct PeriodicPatch {
 }
 
 fn periodic_patch(nx: usize, ny: usize, l0: f64) -> PeriodicPatch {
-    assert!(ny % 2 == 0);
+    assert!(ny.is_multiple_of(2));
     let h = 3f64.sqrt() / 2.0 * l0;
     let id = |i: isize, j: isize| (i.rem_euclid(nx as isize) as usize) + nx * (j.rem_euclid(ny as isize) as usize);
     // position in the unwrapped plane

@@ -381,7 +381,7 @@ impl Plan<'_> {
     }
     fn frame_due(&self, step: u64) -> bool {
         let every = self.output.trajectory_every_steps;
-        every > 0 && step % every == 0
+        every > 0 && step.is_multiple_of(every)
     }
     /// The profile bin of a fluid particle at `x`, if inside the profiled region.
     #[inline]

@@ -241,7 +241,7 @@ fn sample(plan: &Plan, sim: &Simulation<Walls>, m: &mut Measurement, i: u64) {
     let r = plan.run;
     let block = ((i * BLOCKS as u64) / r.steps) as usize;
     let p = sim.particles();
-    let profile = i % r.sample_every == 0;
+    let profile = i.is_multiple_of(r.sample_every);
     let dir = plan.flow_axis();
     // force of the fluid on each surface along the flow: pair forces on the wall particles
     let mut fw = [0.0f64; 2];
@@ -305,7 +305,7 @@ fn control_flow(plan: &Plan, sim: &mut Simulation<Walls>, c: &mut FlowControl, s
     }
     c.window_sum += sum / n.max(1) as f64;
     c.window_steps += 1;
-    if step % every == 0 {
+    if step.is_multiple_of(every) {
         let mean = c.window_sum / c.window_steps as f64;
         let eta = reference_viscosity.unwrap_or(1.0);
         let n_r2 = plan.fluid.density * radius * radius;
