@@ -279,6 +279,39 @@ impl Isa {
     }
 }
 
+/// Defines `$name`, which runs `$body` in its AVX-512 or AVX2 build when the CPU has it, or in
+/// the portable one (the results are the same bit for bit: no floating-point contraction or
+/// reordering is allowed in any of them), and the two `#[target_feature]` builds it calls.
+/// `$body` must be `inline(always)` so that each build compiles its own copy; `$run` names the
+/// [`Run`] argument.
+macro_rules! isa_builds {
+    ($name:ident, $avx2:ident, $avx512:ident, $body:ident, $run:ident, ($($arg:ident: $ty:ty),*), ($($call:ident),*)) => {
+        #[allow(unsafe_code)]
+        fn $name<K: PairKernel, const V: bool, const ONE: bool>($($arg: $ty),*) -> DMat3 {
+            // SAFETY: `run.isa` names an instruction set the CPU reports (`Isa::detect`).
+            #[cfg(target_arch = "x86_64")]
+            match $run.isa {
+                Isa::Avx512 => return unsafe { $avx512::<K, V, ONE>($($call),*) },
+                Isa::Avx2 => return unsafe { $avx2::<K, V, ONE>($($call),*) },
+                Isa::Portable => {}
+            }
+            $body::<K, V, ONE>($($call),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx2")]
+        fn $avx2<K: PairKernel, const V: bool, const ONE: bool>($($arg: $ty),*) -> DMat3 {
+            $body::<K, V, ONE>($($call),*)
+        }
+
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = "avx512f,avx512vl")]
+        fn $avx512<K: PairKernel, const V: bool, const ONE: bool>($($arg: $ty),*) -> DMat3 {
+            $body::<K, V, ONE>($($call),*)
+        }
+    };
+}
+
 /// Computes the pair forces of the cell-sorted particles into `sf` (sorted order, overwritten)
 /// and returns the pair virial Σ_pairs r_ij ⊗ f_ij (zero unless `virial`). `shear` gives the
 /// Lees–Edwards images of a sheared box (None: ordinary periodic boundaries).
@@ -434,52 +467,7 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
     vir.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
 }
 
-/// Runs [`slab_body`], in its AVX-512 or AVX2 build when the CPU has it (the results are the same bit for
-/// bit: no floating-point contraction or reordering is allowed either way).
-#[allow(unsafe_code)]
-fn slab<K: PairKernel, const V: bool, const ONE: bool>(
-    cl: &CellList,
-    table: &KernelTable<K>,
-    run: Run,
-    zz: (usize, usize),
-    win: &mut Win<'_>,
-    le: bool,
-) -> DMat3 {
-    // SAFETY: `run.isa` names an instruction set the CPU reports (`Isa::detect`).
-    #[cfg(target_arch = "x86_64")]
-    match run.isa {
-        Isa::Avx512 => return unsafe { slab_avx512::<K, V, ONE>(cl, table, run, zz, win, le) },
-        Isa::Avx2 => return unsafe { slab_avx2::<K, V, ONE>(cl, table, run, zz, win, le) },
-        Isa::Portable => {}
-    }
-    slab_body::<K, V, ONE>(cl, table, run, zz, win, le)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn slab_avx2<K: PairKernel, const V: bool, const ONE: bool>(
-    cl: &CellList,
-    table: &KernelTable<K>,
-    run: Run,
-    zz: (usize, usize),
-    win: &mut Win<'_>,
-    le: bool,
-) -> DMat3 {
-    slab_body::<K, V, ONE>(cl, table, run, zz, win, le)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl")]
-fn slab_avx512<K: PairKernel, const V: bool, const ONE: bool>(
-    cl: &CellList,
-    table: &KernelTable<K>,
-    run: Run,
-    zz: (usize, usize),
-    win: &mut Win<'_>,
-    le: bool,
-) -> DMat3 {
-    slab_body::<K, V, ONE>(cl, table, run, zz, win, le)
-}
+isa_builds!(slab, slab_avx2, slab_avx512, slab_body, run, (cl: &CellList, table: &KernelTable<K>, run: Run, zz: (usize, usize), win: &mut Win<'_>, le: bool), (cl, table, run, zz, win, le));
 
 #[inline(always)]
 fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
@@ -586,55 +574,7 @@ fn per_layer(cl: &CellList, sf: &mut [DVec3], task: impl Fn(usize, usize, &mut [
     out.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
 }
 
-/// Runs [`gather_layer_body`], in its AVX-512 or AVX2 build when the CPU has it (the results are the same bit for
-/// bit: no floating-point contraction or reordering is allowed either way).
-#[allow(unsafe_code)]
-fn gather_layer<K: PairKernel, const V: bool, const ONE: bool>(
-    cl: &CellList,
-    table: &KernelTable<K>,
-    run: Run,
-    z: usize,
-    off: usize,
-    out: &mut [DVec3],
-    le: bool,
-) -> DMat3 {
-    // SAFETY: `run.isa` names an instruction set the CPU reports (`Isa::detect`).
-    #[cfg(target_arch = "x86_64")]
-    match run.isa {
-        Isa::Avx512 => return unsafe { gather_layer_avx512::<K, V, ONE>(cl, table, run, z, off, out, le) },
-        Isa::Avx2 => return unsafe { gather_layer_avx2::<K, V, ONE>(cl, table, run, z, off, out, le) },
-        Isa::Portable => {}
-    }
-    gather_layer_body::<K, V, ONE>(cl, table, run, z, off, out, le)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn gather_layer_avx2<K: PairKernel, const V: bool, const ONE: bool>(
-    cl: &CellList,
-    table: &KernelTable<K>,
-    run: Run,
-    z: usize,
-    off: usize,
-    out: &mut [DVec3],
-    le: bool,
-) -> DMat3 {
-    gather_layer_body::<K, V, ONE>(cl, table, run, z, off, out, le)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl")]
-fn gather_layer_avx512<K: PairKernel, const V: bool, const ONE: bool>(
-    cl: &CellList,
-    table: &KernelTable<K>,
-    run: Run,
-    z: usize,
-    off: usize,
-    out: &mut [DVec3],
-    le: bool,
-) -> DMat3 {
-    gather_layer_body::<K, V, ONE>(cl, table, run, z, off, out, le)
-}
+isa_builds!(gather_layer, gather_layer_avx2, gather_layer_avx512, gather_layer_body, run, (cl: &CellList, table: &KernelTable<K>, run: Run, z: usize, off: usize, out: &mut [DVec3], le: bool), (cl, table, run, z, off, out, le));
 
 #[inline(always)]
 fn gather_layer_body<K: PairKernel, const V: bool, const ONE: bool>(
@@ -717,55 +657,7 @@ fn shear_cross<K: PairKernel, const V: bool, const ONE: bool>(
     })
 }
 
-/// Runs [`shear_cross_layer_body`], in its AVX-512 or AVX2 build when the CPU has it (the results are the same bit for
-/// bit: no floating-point contraction or reordering is allowed either way).
-#[allow(unsafe_code)]
-fn shear_cross_layer<K: PairKernel, const V: bool, const ONE: bool>(
-    cl: &CellList,
-    table: &KernelTable<K>,
-    run: Run,
-    z: usize,
-    off: usize,
-    out: &mut [DVec3],
-    sh: ShearImages,
-) -> DMat3 {
-    // SAFETY: `run.isa` names an instruction set the CPU reports (`Isa::detect`).
-    #[cfg(target_arch = "x86_64")]
-    match run.isa {
-        Isa::Avx512 => return unsafe { shear_cross_layer_avx512::<K, V, ONE>(cl, table, run, z, off, out, sh) },
-        Isa::Avx2 => return unsafe { shear_cross_layer_avx2::<K, V, ONE>(cl, table, run, z, off, out, sh) },
-        Isa::Portable => {}
-    }
-    shear_cross_layer_body::<K, V, ONE>(cl, table, run, z, off, out, sh)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-fn shear_cross_layer_avx2<K: PairKernel, const V: bool, const ONE: bool>(
-    cl: &CellList,
-    table: &KernelTable<K>,
-    run: Run,
-    z: usize,
-    off: usize,
-    out: &mut [DVec3],
-    sh: ShearImages,
-) -> DMat3 {
-    shear_cross_layer_body::<K, V, ONE>(cl, table, run, z, off, out, sh)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl")]
-fn shear_cross_layer_avx512<K: PairKernel, const V: bool, const ONE: bool>(
-    cl: &CellList,
-    table: &KernelTable<K>,
-    run: Run,
-    z: usize,
-    off: usize,
-    out: &mut [DVec3],
-    sh: ShearImages,
-) -> DMat3 {
-    shear_cross_layer_body::<K, V, ONE>(cl, table, run, z, off, out, sh)
-}
+isa_builds!(shear_cross_layer, shear_cross_layer_avx2, shear_cross_layer_avx512, shear_cross_layer_body, run, (cl: &CellList, table: &KernelTable<K>, run: Run, z: usize, off: usize, out: &mut [DVec3], sh: ShearImages), (cl, table, run, z, off, out, sh));
 
 #[inline(always)]
 fn shear_cross_layer_body<K: PairKernel, const V: bool, const ONE: bool>(

@@ -68,6 +68,34 @@ impl HitArrays {
     }
 }
 
+/// Panics unless a scan of `a..e` in chunks of `L` lanes can read and write without bounds
+/// checks: the inputs padded to `e + L − 1`, the hit arrays `n + (e − a) + L` long.
+#[inline(always)]
+fn check_room<const L: usize>(
+    [px, py, pz]: [&[Real]; 3],
+    cutoff: Cutoff<'_>,
+    ids: Option<&[u32]>,
+    out: &HitArrays,
+    a: usize,
+    e: usize,
+    n: usize,
+) {
+    let end = e + L - 1;
+    assert!(
+        px.len() >= end && py.len() >= end && pz.len() >= end,
+        "positions not padded"
+    );
+    if let Cutoff::PerType { ptype, .. } = cutoff {
+        assert!(ptype.len() >= end, "types not padded");
+    }
+    if let Some(ids) = ids {
+        assert!(ids.len() >= end, "ids not padded");
+    }
+    let room = n + (e - a) + L;
+    let lens = [out.j.len(), out.dx.len(), out.dy.len(), out.dz.len(), out.r2.len()];
+    assert!(lens.iter().all(|&l| l >= room), "hit arrays too short");
+}
+
 /// Cutoffs of the distance test: one for every candidate, or one per candidate type.
 #[derive(Clone, Copy)]
 pub(crate) enum Cutoff<'a> {
@@ -111,26 +139,7 @@ pub(crate) unsafe fn scan_avx2<const POST: bool>(
     }
     // Every chunk below reads 4 entries from j < e and writes 4 from the running count, which
     // stays below n + (e − a): check both ends once, then use unchecked pointers.
-    let end = e + 3;
-    assert!(
-        px.len() >= end && py.len() >= end && pz.len() >= end,
-        "positions not padded"
-    );
-    let room = n + (e - a) + 4;
-    assert!(
-        out.j.len() >= room
-            && out.dx.len() >= room
-            && out.dy.len() >= room
-            && out.dz.len() >= room
-            && out.r2.len() >= room,
-        "hit arrays too short"
-    );
-    if let Cutoff::PerType { ptype, .. } = cutoff {
-        assert!(ptype.len() >= end, "types not padded");
-    }
-    if let Some(ids) = ids {
-        assert!(ids.len() >= end, "ids not padded");
-    }
+    check_room::<4>([px, py, pz], cutoff, ids, out, a, e, n);
     let (px, py, pz) = (px.as_ptr(), py.as_ptr(), pz.as_ptr());
     let (oj, ox, oy, oz, or) = (
         out.j.as_mut_ptr(),
@@ -229,26 +238,7 @@ pub(crate) unsafe fn scan_avx512<const POST: bool>(
     if a >= e {
         return n;
     }
-    let end = e + 7;
-    assert!(
-        px.len() >= end && py.len() >= end && pz.len() >= end,
-        "positions not padded"
-    );
-    let room = n + (e - a) + 8;
-    assert!(
-        out.j.len() >= room
-            && out.dx.len() >= room
-            && out.dy.len() >= room
-            && out.dz.len() >= room
-            && out.r2.len() >= room,
-        "hit arrays too short"
-    );
-    if let Cutoff::PerType { ptype, .. } = cutoff {
-        assert!(ptype.len() >= end, "types not padded");
-    }
-    if let Some(ids) = ids {
-        assert!(ids.len() >= end, "ids not padded");
-    }
+    check_room::<8>([px, py, pz], cutoff, ids, out, a, e, n);
     let (qx, qy, qz) = (_mm512_set1_pd(p[0]), _mm512_set1_pd(p[1]), _mm512_set1_pd(p[2]));
     let (sx, sy, sz) = (_mm512_set1_pd(sh[0]), _mm512_set1_pd(sh[1]), _mm512_set1_pd(sh[2]));
     let zero = _mm512_setzero_pd();
