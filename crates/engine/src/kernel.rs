@@ -17,8 +17,8 @@ pub trait PairKernel: Copy + Send + Sync + 'static {
     /// `dv = v_i − v_j` (the predicted velocities), `xi` the pair's symmetric random number.
     /// Must be odd in (dr, dv) for fixed `xi` so that Newton's third law holds exactly.
     fn force(&self, dr: DVec3, r2: Real, dv: DVec3, xi: Real) -> DVec3;
-    /// Whether the random force is on (σ ≠ 0 and the pair enabled). When no pair of a table is
-    /// noisy (zero temperature) the loops pass ξ = 0 and compute no hash.
+    /// Whether the random force is on (σ ≠ 0 and the pair enabled). For a pair that is not
+    /// (zero temperature, a repulsion-only pair) the loops pass ξ = 0 and compute no hash.
     fn noisy(&self) -> bool;
 }
 
@@ -124,49 +124,37 @@ impl PairKernel for DpdGeneral {
 /// w^R = (1 − r/rc)^¼ = √√w and w^D = √w, two square roots instead of a `powf`. Agrees with
 /// [`DpdGeneral`] at s = ¼ to round-off (not bit for bit).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct DpdQuarter {
-    rc2: Real,
-    inv_rc: Real,
-    a: Real,
-    gamma: Real,
-    sigma_dt: Real,
-}
+pub struct DpdQuarter(DpdLinear);
 
 impl DpdQuarter {
     /// From pair parameters (their s is taken to be ¼) and the time step.
     pub fn new(p: &PairParams, dt: Real, enabled: bool) -> Self {
-        let l = DpdLinear::new(p, dt, enabled);
-        Self {
-            rc2: l.rc2,
-            inv_rc: l.inv_rc,
-            a: l.a,
-            gamma: l.gamma,
-            sigma_dt: l.sigma_dt,
-        }
+        Self(DpdLinear::new(p, dt, enabled))
     }
 }
 
 impl PairKernel for DpdQuarter {
     #[inline(always)]
     fn cutoff2(&self) -> Real {
-        self.rc2
+        self.0.rc2
     }
 
     #[inline(always)]
     fn noisy(&self) -> bool {
-        self.rc2 > 0.0 && self.sigma_dt != 0.0
+        self.0.noisy()
     }
 
     #[inline(always)]
     fn force(&self, dr: DVec3, r2: Real, dv: DVec3, xi: Real) -> DVec3 {
         let r = r2.sqrt();
         let inv_r = 1.0 / r;
+        let k = &self.0;
         // ≥ 0: r² < rc² can still round to r = rc
-        let w = (1.0 - r * self.inv_rc).max(0.0);
+        let w = (1.0 - r * k.inv_rc).max(0.0);
         let wd = w.sqrt();
         let wr = wd.sqrt();
         let edv = dr.dot(dv) * inv_r;
-        let mag = self.a * w - self.gamma * wd * edv + self.sigma_dt * wr * xi;
+        let mag = k.a * w - k.gamma * wd * edv + k.sigma_dt * wr * xi;
         dr * (mag * inv_r)
     }
 }

@@ -69,29 +69,6 @@ fn outer(a: DVec3, b: DVec3) -> DMat3 {
 pub(crate) const LANES: usize = 8;
 const _: () = assert!(crate::cells::PAD + 1 >= LANES);
 
-/// Where the distance test reads its candidates: padded structure-of-arrays positions and types,
-/// and the sorted index of each candidate (`ids`; None: the position index itself).
-#[derive(Clone, Copy)]
-struct Src<'a> {
-    px: &'a [Real],
-    py: &'a [Real],
-    pz: &'a [Real],
-    ptype: &'a [u16],
-    ids: Option<&'a [u32]>,
-}
-
-impl<'a> Src<'a> {
-    fn sorted(cl: &'a CellList) -> Self {
-        Self {
-            px: &cl.px,
-            py: &cl.py,
-            pz: &cl.pz,
-            ptype: &cl.ptype,
-            ids: None,
-        }
-    }
-}
-
 /// The candidates of one particle i that passed the distance test: `h.j[..n]` (sorted indices)
 /// with their separations `h.dx, h.dy, h.dz` and `h.r2`.
 #[derive(Default)]
@@ -119,11 +96,10 @@ impl Hits {
     /// The separation is `p − x_j` (`POST = false`, `p` already shifted) or `(p − x_j) − sh`
     /// (`POST = true`), component by component, and r² = (dx² + dy²) + dz² as `DVec3::dot`.
     #[inline(always)]
-    fn scan<K: PairKernel, const ONE: bool, const POST: bool>(
+    fn scan<const ONE: bool, const POST: bool>(
         &mut self,
-        row: &[K],
         (rc2_row, uniform): (&[Real], Option<Real>),
-        src: Src<'_>,
+        cl: &CellList,
         isa: Isa,
         a: usize,
         e: usize,
@@ -136,50 +112,41 @@ impl Hits {
                 (true, _) => simd::Cutoff::One(rc2_row[0]),
                 (false, Some(c)) => simd::Cutoff::One(c),
                 (false, None) => simd::Cutoff::PerType {
-                    ptype: src.ptype,
+                    ptype: &cl.ptype,
                     table: rc2_row,
                 },
             };
-            let (pos, p, sh) = ([src.px, src.py, src.pz], p.to_array(), sh.to_array());
+            let (pos, p, sh) = ([&cl.px[..], &cl.py, &cl.pz], p.to_array(), sh.to_array());
             // SAFETY: `isa` names an instruction set the CPU reports (`Isa::detect`), and then
             // this is compiled into the `*_avx2` / `*_avx512` builds of the tasks (inline(always)
             // all the way up), which enable it.
             #[allow(unsafe_code)]
             let n = unsafe {
                 if isa == Isa::Avx512 {
-                    simd::scan_avx512::<POST>(pos, cutoff, a, e, p, sh, src.ids, &mut self.h, self.n)
+                    simd::scan_avx512::<POST>(pos, cutoff, a, e, p, sh, &mut self.h, self.n)
                 } else {
-                    simd::scan_avx2::<POST>(pos, cutoff, a, e, p, sh, src.ids, &mut self.h, self.n)
+                    simd::scan_avx2::<POST>(pos, cutoff, a, e, p, sh, &mut self.h, self.n)
                 }
             };
             self.n = n;
             return;
         }
-        let _ = (isa, rc2_row, uniform);
+        let _ = (isa, uniform);
         let mut n = self.n;
-        let rc2_one = row[0].cutoff2();
         let h = &mut self.h;
         for j in a..e {
             let (dx, dy, dz) = if POST {
                 (
-                    (p.x - src.px[j]) - sh.x,
-                    (p.y - src.py[j]) - sh.y,
-                    (p.z - src.pz[j]) - sh.z,
+                    (p.x - cl.px[j]) - sh.x,
+                    (p.y - cl.py[j]) - sh.y,
+                    (p.z - cl.pz[j]) - sh.z,
                 )
             } else {
-                (p.x - src.px[j], p.y - src.py[j], p.z - src.pz[j])
+                (p.x - cl.px[j], p.y - cl.py[j], p.z - cl.pz[j])
             };
             let r2 = dx * dx + dy * dy + dz * dz;
-            let rc2 = if ONE {
-                rc2_one
-            } else {
-                row[src.ptype[j] as usize].cutoff2()
-            };
-            let id = match src.ids {
-                None => j as u32,
-                Some(ids) => ids[j],
-            };
-            (h.j[n], h.dx[n], h.dy[n], h.dz[n], h.r2[n]) = (id, dx, dy, dz, r2);
+            let rc2 = rc2_row[if ONE { 0 } else { cl.ptype[j] as usize }];
+            (h.j[n], h.dx[n], h.dy[n], h.dz[n], h.r2[n]) = (j as u32, dx, dy, dz, r2);
             n += ((r2 < rc2) & (r2 > 0.0)) as usize;
         }
         self.n = n;
@@ -193,19 +160,15 @@ fn pair_force<K: PairKernel, const ONE: bool>(
     row: &[K],
     cl: &CellList,
     key: u64,
-    noise: bool,
     vi: DVec3,
     idi: u32,
     (j, dr, r2): (usize, DVec3, Real),
     dv_shift: DVec3,
 ) -> DVec3 {
     let kern = if ONE { row[0] } else { row[cl.ptype[j] as usize] };
-    // no hash for a pair without a random force (e.g. the repulsion-only plasma–cytosol pairs)
-    let xi = if noise && kern.noisy() {
-        pair_xi(key, idi, cl.id[j])
-    } else {
-        0.0
-    };
+    // no hash for a pair without a random force (zero temperature, or the repulsion-only
+    // plasma–cytosol pairs)
+    let xi = if kern.noisy() { pair_xi(key, idi, cl.id[j]) } else { 0.0 };
     kern.force(dr, r2, (vi - cl.vel[j]) - dv_shift, xi)
 }
 
@@ -233,8 +196,6 @@ fn push_range(nb: &mut [(usize, usize, DVec3)], len: &mut usize, a: usize, e: us
 struct Run {
     /// Noise key of this force evaluation ([`crate::rng::step_key`]).
     key: u64,
-    /// Whether any pair has a random force (false at zero temperature: no hash is computed).
-    noise: bool,
     /// The instruction set the tasks run with (detected at run time).
     isa: Isa,
 }
@@ -330,7 +291,6 @@ pub fn compute<K: PairKernel>(
     let le = shear.is_some();
     let run = Run {
         key,
-        noise: (0..table.ntypes()).any(|i| table.row(i).iter().any(|k| k.noisy())),
         isa: Isa::detect(),
     };
     let w = match (scheme, virial, one) {
@@ -501,7 +461,6 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     push_range(&mut nb, &mut nnb, a, e, sh);
                     m += e - a;
                 }
-                let src = Src::sorted(cl);
                 // The cell x + 1 usually follows this one in the sorted arrays with no shift:
                 // then it joins the cell's own range (same visiting order, one range less).
                 let (own_end, skip) = match nb.first() {
@@ -517,14 +476,14 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     let (row, rc2_row) = (table.row(ti), (table.cutoff2_row(ti), table.uniform_cutoff2(ti)));
                     // The cell's own later particles, then the neighbour ranges, in visiting order.
                     hits.n = 0;
-                    hits.scan::<K, ONE, false>(row, rc2_row, src, run.isa, i + 1, own_end, pi, DVec3::ZERO);
+                    hits.scan::<ONE, false>(rc2_row, cl, run.isa, i + 1, own_end, pi, DVec3::ZERO);
                     for &(a, e, sh) in &nb[skip..nnb] {
-                        hits.scan::<K, ONE, false>(row, rc2_row, src, run.isa, a, e, pi - sh, DVec3::ZERO);
+                        hits.scan::<ONE, false>(rc2_row, cl, run.isa, a, e, pi - sh, DVec3::ZERO);
                     }
                     let mut fi = DVec3::ZERO;
                     for k in 0..hits.n {
                         let hit = hits.get(k);
-                        let f = pair_force::<K, ONE>(row, cl, run.key, run.noise, vi, idi, hit, DVec3::ZERO);
+                        let f = pair_force::<K, ONE>(row, cl, run.key, vi, idi, hit, DVec3::ZERO);
                         fi += f;
                         win.add(hit.0, -f);
                         if V {
@@ -623,12 +582,12 @@ fn gather_layer_body<K: PairKernel, const V: bool, const ONE: bool>(
                 // (j == i gives r² = 0 and is skipped), so Newton's third law holds bit for bit.
                 hits.n = 0;
                 for &(a, e, sh) in &nb[..nnb] {
-                    hits.scan::<K, ONE, true>(row, rc2_row, Src::sorted(cl), run.isa, a, e, pi, sh);
+                    hits.scan::<ONE, true>(rc2_row, cl, run.isa, a, e, pi, sh);
                 }
                 let mut fi = DVec3::ZERO;
                 for k in 0..hits.n {
                     let hit = hits.get(k);
-                    let f = pair_force::<K, ONE>(row, cl, run.key, run.noise, vi, idi, hit, DVec3::ZERO);
+                    let f = pair_force::<K, ONE>(row, cl, run.key, vi, idi, hit, DVec3::ZERO);
                     fi += f;
                     if V {
                         vir += outer(hit.1, f * 0.5);
@@ -722,10 +681,10 @@ fn shear_cross_layer_body<K: PairKernel, const V: bool, const ONE: bool>(
                 let mut fi = DVec3::ZERO;
                 for &(a, e, shift, vshift) in &nb[..nnb] {
                     hits.n = 0;
-                    hits.scan::<K, ONE, true>(row, rc2_row, Src::sorted(cl), run.isa, a, e, pi, shift);
+                    hits.scan::<ONE, true>(rc2_row, cl, run.isa, a, e, pi, shift);
                     for k in 0..hits.n {
                         let hit = hits.get(k);
-                        let f = pair_force::<K, ONE>(row, cl, run.key, run.noise, vi, idi, hit, vshift);
+                        let f = pair_force::<K, ONE>(row, cl, run.key, vi, idi, hit, vshift);
                         fi += f;
                         if V {
                             vir += outer(hit.1, f * 0.5);
@@ -815,7 +774,6 @@ mod tests {
         let (cl, one, two) = setup(1.0);
         let portable = Run {
             key: 42,
-            noise: true,
             isa: Isa::Portable,
         };
         for t in [&one, &two] {
@@ -837,20 +795,19 @@ mod tests {
         }
     }
 
-    /// At zero temperature no pair is noisy, the loops skip the hash, and the forces equal those
-    /// computed with the noise on but ξ multiplied by σ = 0 (i.e. the same numbers).
+    /// At zero temperature no pair is noisy, so no random force enters: the forces do not depend
+    /// on the noise key, while at kBT = 1 they do (the same 600 particles).
     #[test]
     fn zero_temperature_skips_the_noise() {
         let (cl, cold, _) = setup(0.0);
         assert!(!cold.row(0)[0].noisy());
         let (_, hot, _) = setup(1.0);
         assert!(hot.row(0)[0].noisy());
-        let skip = Run {
-            key: 9,
-            noise: false,
+        let run = |key| Run {
+            key,
             isa: Isa::Portable,
         };
-        let with_hash = Run { noise: true, ..skip };
-        assert!(all_schemes(&cl, &cold, skip) == all_schemes(&cl, &cold, with_hash));
+        assert!(all_schemes(&cl, &cold, run(9)) == all_schemes(&cl, &cold, run(10)));
+        assert!(all_schemes(&cl, &hot, run(9)) != all_schemes(&cl, &hot, run(10)));
     }
 }

@@ -74,7 +74,6 @@ impl HitArrays {
 fn check_room<const L: usize>(
     [px, py, pz]: [&[Real]; 3],
     cutoff: Cutoff<'_>,
-    ids: Option<&[u32]>,
     out: &HitArrays,
     a: usize,
     e: usize,
@@ -87,9 +86,6 @@ fn check_room<const L: usize>(
     );
     if let Cutoff::PerType { ptype, .. } = cutoff {
         assert!(ptype.len() >= end, "types not padded");
-    }
-    if let Some(ids) = ids {
-        assert!(ids.len() >= end, "ids not padded");
     }
     let room = n + (e - a) + L;
     let lens = [out.j.len(), out.dx.len(), out.dy.len(), out.dz.len(), out.r2.len()];
@@ -108,7 +104,7 @@ pub(crate) enum Cutoff<'a> {
 /// Appends to `out` at `n` the candidates j ∈ [a, e) (with their separation and r²) with 0 < r² < cutoff², where the
 /// separation is `p − x_j` (`POST = false`) or `(p − x_j) − sh` (`POST = true`), and returns the
 /// new count. `px, py, pz` must hold at least `e + 3` entries and `out` room for `n + (e − a) + 4`
-/// hits. The index stored for candidate j is j itself, or `ids[j]` when given (padded too).
+/// hits.
 ///
 /// # Safety
 /// Only to be called from a function compiled with AVX2 enabled
@@ -123,7 +119,6 @@ pub(crate) unsafe fn scan_avx2<const POST: bool>(
     e: usize,
     p: [Real; 3],
     sh: [Real; 3],
-    ids: Option<&[u32]>,
     out: &mut HitArrays,
     mut n: usize,
 ) -> usize {
@@ -139,7 +134,7 @@ pub(crate) unsafe fn scan_avx2<const POST: bool>(
     }
     // Every chunk below reads 4 entries from j < e and writes 4 from the running count, which
     // stays below n + (e − a): check both ends once, then use unchecked pointers.
-    check_room::<4>([px, py, pz], cutoff, ids, out, a, e, n);
+    check_room::<4>([px, py, pz], cutoff, out, a, e, n);
     let (px, py, pz) = (px.as_ptr(), py.as_ptr(), pz.as_ptr());
     let (oj, ox, oy, oz, or) = (
         out.j.as_mut_ptr(),
@@ -194,14 +189,7 @@ pub(crate) unsafe fn scan_avx2<const POST: bool>(
             // Compress the hits to the front of each vector and store them at n (the lanes past
             // the hits are overwritten by the next chunk or ignored).
             let lanes = _mm_loadu_si128(PACK.as_ptr().add(mask).cast());
-            let js = match ids {
-                None => _mm_add_epi32(_mm_set1_epi32(j as i32), lanes),
-                Some(ids) => {
-                    let v = _mm_loadu_si128(ids.as_ptr().add(j).cast());
-                    _mm_castps_si128(_mm_permutevar_ps(_mm_castsi128_ps(v), lanes))
-                }
-            };
-            _mm_storeu_si128(oj.add(n).cast(), js);
+            _mm_storeu_si128(oj.add(n).cast(), _mm_add_epi32(_mm_set1_epi32(j as i32), lanes));
             let perm = _mm256_loadu_si256(PACK64.as_ptr().add(mask).cast());
             let pack = |v: __m256d| _mm256_castsi256_pd(_mm256_permutevar8x32_epi32(_mm256_castpd_si256(v), perm));
             _mm256_storeu_pd(ox.add(n), pack(dx));
@@ -216,7 +204,7 @@ pub(crate) unsafe fn scan_avx2<const POST: bool>(
 }
 
 /// The AVX-512 (F + VL) build of [`scan_avx2`]: 8 candidates per chunk, the hits compressed in
-/// registers. Same arguments, same results bit for bit; `px, py, pz` (and `ids`, `ptype`) must
+/// registers. Same arguments, same results bit for bit; `px, py, pz` (and `ptype`) must
 /// hold at least `e + 7` entries and `out` room for `n + (e − a) + 8` hits.
 ///
 /// # Safety
@@ -231,14 +219,13 @@ pub(crate) unsafe fn scan_avx512<const POST: bool>(
     e: usize,
     p: [Real; 3],
     sh: [Real; 3],
-    ids: Option<&[u32]>,
     out: &mut HitArrays,
     mut n: usize,
 ) -> usize {
     if a >= e {
         return n;
     }
-    check_room::<8>([px, py, pz], cutoff, ids, out, a, e, n);
+    check_room::<8>([px, py, pz], cutoff, out, a, e, n);
     let (qx, qy, qz) = (_mm512_set1_pd(p[0]), _mm512_set1_pd(p[1]), _mm512_set1_pd(p[2]));
     let (sx, sy, sz) = (_mm512_set1_pd(sh[0]), _mm512_set1_pd(sh[1]), _mm512_set1_pd(sh[2]));
     let zero = _mm512_setzero_pd();
@@ -297,10 +284,7 @@ pub(crate) unsafe fn scan_avx512<const POST: bool>(
             let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
             let mask =
                 _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(tail, r2, rc2) & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(r2, zero);
-            let js = match ids {
-                None => _mm256_add_epi32(_mm256_set1_epi32(j as i32), lane),
-                Some(ids) => _mm256_loadu_si256(ids.as_ptr().add(j).cast()),
-            };
+            let js = _mm256_add_epi32(_mm256_set1_epi32(j as i32), lane);
             _mm256_storeu_si256(oj.add(n).cast(), _mm256_maskz_compress_epi32(mask, js));
             _mm512_storeu_pd(ox.add(n), _mm512_maskz_compress_pd(mask, dx));
             _mm512_storeu_pd(oy.add(n), _mm512_maskz_compress_pd(mask, dy));
