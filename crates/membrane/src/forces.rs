@@ -20,6 +20,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod kernels;
+pub(crate) mod hessian;
 mod parallel;
 
 pub use parallel::ForceWorkspace;

@@ -21,6 +21,7 @@ pub mod meshgen;
 pub mod meshio;
 pub mod motion;
 pub mod params;
+pub mod precondition;
 pub mod respa;
 pub mod shape;
 pub mod stretch;

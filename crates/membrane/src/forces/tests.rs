@@ -778,6 +778,7 @@ fn ka_kv_choice_under_stretching() {
                 end_fraction: 0.05,
                 tolerance: 1e-4,
                 max_iterations: 200_000,
+                preconditioning: Default::default(),
             };
             let t = std::time::Instant::now();
             let pts = crate::stretch::stretch(&model, &x, &opts, |_| {}).unwrap();
@@ -1016,6 +1017,7 @@ fn stretching_split_in_two_is_bit_identical() {
         end_fraction: 0.05,
         tolerance: 1e-4,
         max_iterations: 200_000,
+        preconditioning: Default::default(),
     };
     let whole = crate::stretch::stretch(&model, &x, &opts(&[0.0, 60.0, 120.0, 180.0]), |_| {}).unwrap();
     let first = crate::stretch::stretch(&model, &x, &opts(&[0.0, 60.0]), |_| {}).unwrap();
@@ -1081,6 +1083,7 @@ fn stretching_diameters_are_converged_to_1e_3_um() {
         end_fraction: 0.05,
         tolerance,
         max_iterations: 200_000,
+        preconditioning: Default::default(),
     };
     let fast = crate::stretch::stretch(&model, &x, &opts(1e-4), |_| {}).unwrap();
     let tight = crate::stretch::stretch(&model, &x, &opts(1e-7), |_| {}).unwrap();
@@ -1107,6 +1110,7 @@ fn stretching_is_bit_identical_for_any_thread_count() {
         end_fraction: 0.05,
         tolerance: 1e-4,
         max_iterations: 200_000,
+        preconditioning: Default::default(),
     };
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

@@ -1,0 +1,285 @@
+//! The stretching solver's preconditioner P ≈ ∇²E, a symmetric positive-definite 3N × 3N
+//! matrix: P = P₀ + U C Uᵀ, where P₀ is the sparse Gauss–Newton Hessian of the local terms
+//! (links, triangles, dihedrals; see `forces/hessian.rs`) plus ε I, and U C Uᵀ the two
+//! dense rank-one terms of the global area and volume constraints, (k_a/A0) ∇A ∇Aᵀ and
+//! (k_v/V0) ∇V ∇Vᵀ. P₀ = L Lᵀ is factorised by faer's sparse Cholesky (AMD fill-reducing
+//! order, sequential, so the factor does not depend on the thread count); P⁻¹ follows from the
+//! Sherman–Morrison–Woodbury formula with the 2 × 2 capacitance matrix C⁻¹ + Uᵀ P₀⁻¹ U.
+//! The solver applies P⁻¹ as its initial inverse Hessian; one factorisation serves a whole
+//! force of the protocol.
+
+use crate::forces::{ForceError, MembraneModel};
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::cholesky::llt::factor::LltRegularization;
+use faer::sparse::linalg::cholesky::{factorize_symbolic_cholesky, LltRef, SymbolicCholesky, SymmetricOrdering};
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Conj, MatMut, Par, Side};
+use glam::{DMat3, DVec3};
+
+/// A symmetric matrix of 3 × 3 blocks on a fixed pattern of vertex pairs; only the blocks
+/// (i, j) with i ≥ j are stored, block (i, j) holding rows 3i..3i+3 and columns 3j..3j+3.
+pub(crate) struct BlockMatrix {
+    /// For column block j, its row blocks are `rows[start[j]..start[j + 1]]`, ascending, the
+    /// first being j itself.
+    start: Vec<usize>,
+    rows: Vec<u32>,
+    blocks: Vec<DMat3>,
+}
+
+impl BlockMatrix {
+    /// The pattern: every diagonal block and the blocks of `pairs` (either order, repeats allowed).
+    pub(crate) fn new(n: usize, pairs: impl Iterator<Item = (u32, u32)>) -> Self {
+        let mut lists: Vec<Vec<u32>> = (0..n as u32).map(|j| vec![j]).collect();
+        for (a, b) in pairs {
+            let (i, j) = if a >= b { (a, b) } else { (b, a) };
+            lists[j as usize].push(i);
+        }
+        let mut start = Vec::with_capacity(n + 1);
+        let mut rows = Vec::new();
+        start.push(0);
+        for mut l in lists {
+            l.sort_unstable();
+            l.dedup();
+            rows.extend(l);
+            start.push(rows.len());
+        }
+        let blocks = vec![DMat3::ZERO; rows.len()];
+        Self { start, rows, blocks }
+    }
+
+    fn n(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    fn clear(&mut self) {
+        self.blocks.iter_mut().for_each(|b| *b = DMat3::ZERO);
+    }
+
+    /// Index of block (i, j), i ≥ j; the pair must be in the pattern.
+    #[inline]
+    fn find(&self, i: usize, j: usize) -> usize {
+        let (s, e) = (self.start[j], self.start[j + 1]);
+        match self.rows[s..e].binary_search(&(i as u32)) {
+            Ok(k) => s + k,
+            Err(_) => panic!("block ({i}, {j}) is not in the pattern"),
+        }
+    }
+
+    /// H_ij += m (and so H_ji += mᵀ). A diagonal m must be symmetric.
+    #[inline]
+    pub(crate) fn add(&mut self, i: usize, j: usize, m: DMat3) {
+        if i >= j {
+            let k = self.find(i, j);
+            self.blocks[k] += m;
+        } else {
+            let k = self.find(j, i);
+            self.blocks[k] += m.transpose();
+        }
+    }
+
+    /// H += c Σ_ab g_a g_bᵀ over the vertices `idx` (distinct) with gradients `g`.
+    #[inline]
+    pub(crate) fn add_outer(&mut self, idx: &[usize], g: &[DVec3], c: f64) {
+        for (a, &ia) in idx.iter().enumerate() {
+            for (b, &ib) in idx.iter().enumerate() {
+                if ia >= ib {
+                    let k = self.find(ia, ib);
+                    self.blocks[k] += crate::forces::hessian::outer(g[a] * c, g[b]);
+                }
+            }
+        }
+    }
+}
+
+/// Why the preconditioner could not be built or factorised.
+#[derive(Debug, thiserror::Error)]
+pub enum PreconditionError {
+    #[error(transparent)]
+    Force(#[from] ForceError),
+    #[error("the sparse Cholesky factorisation failed: {0}")]
+    Factor(String),
+}
+
+/// P, factorised (see the module doc); [`apply`](Self::apply) gives P⁻¹ v.
+pub struct Preconditioner {
+    blocks: BlockMatrix,
+    /// The lower triangle of P in compressed sparse columns (fixed pattern).
+    col_ptr: Vec<usize>,
+    row_idx: Vec<usize>,
+    values: Vec<f64>,
+    /// For each stored value: its block and the entry (row-major r·3 + c) in the block.
+    source: Vec<(u32, u8)>,
+    diagonal: Vec<usize>,
+    symbolic: SymbolicCholesky<usize>,
+    factor: Vec<f64>,
+    factored: bool,
+    rhs: Vec<f64>,
+    scratch: MemBuffer,
+    /// The global area and volume terms c_k u_k u_kᵀ (k = area, volume): u_k, P₀⁻¹ u_k, and the
+    /// inverse of the 2 × 2 capacitance matrix diag(1/c_k) + Uᵀ P₀⁻¹ U.
+    constraint: [Vec<DVec3>; 2],
+    constraint_solved: [Vec<DVec3>; 2],
+    capacitance_inv: [[f64; 2]; 2],
+}
+
+impl Preconditioner {
+    /// The pattern and the symbolic factorisation (ordering) for `model`'s mesh.
+    pub fn new(model: &MembraneModel) -> Result<Self, PreconditionError> {
+        let blocks = BlockMatrix::new(model.n_vertices(), model.hessian_pairs());
+        let n = blocks.n();
+        let (mut col_ptr, mut row_idx, mut source, mut diagonal) = (vec![0], Vec::new(), Vec::new(), Vec::new());
+        for j in 0..n {
+            for c in 0..3 {
+                for k in blocks.start[j]..blocks.start[j + 1] {
+                    let i = blocks.rows[k] as usize;
+                    for r in 0..3 {
+                        if i == j && r < c {
+                            continue;
+                        }
+                        if i == j && r == c {
+                            diagonal.push(row_idx.len());
+                        }
+                        row_idx.push(3 * i + r);
+                        source.push((k as u32, (3 * r + c) as u8));
+                    }
+                }
+                col_ptr.push(row_idx.len());
+            }
+        }
+        let symbolic = {
+            let pattern = SymbolicSparseColMatRef::new_checked(3 * n, 3 * n, &col_ptr, None, &row_idx);
+            factorize_symbolic_cholesky(pattern, Side::Lower, SymmetricOrdering::Amd, Default::default())
+                .map_err(|e| PreconditionError::Factor(format!("{e:?}")))?
+        };
+        let scratch = MemBuffer::new(StackReq::any_of(&[
+            symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
+            symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
+        ]));
+        Ok(Self {
+            values: vec![0.0; row_idx.len()],
+            factor: vec![0.0; symbolic.len_val()],
+            blocks,
+            col_ptr,
+            row_idx,
+            source,
+            diagonal,
+            symbolic,
+            factored: false,
+            rhs: vec![0.0; 3 * n],
+            scratch,
+            constraint: [vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]],
+            constraint_solved: [vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]],
+            capacitance_inv: [[0.0; 2]; 2],
+        })
+    }
+
+    /// Assembles P at `x` and factorises it. On error the preconditioner is left unusable
+    /// until the next successful update ([`apply`](Self::apply) then returns false).
+    pub fn update(&mut self, model: &MembraneModel, x: &[DVec3]) -> Result<(), PreconditionError> {
+        self.factored = false;
+        self.blocks.clear();
+        model.add_gauss_newton(x, &mut self.blocks)?;
+        for (v, &(k, e)) in self.values.iter_mut().zip(&self.source) {
+            let m = &self.blocks.blocks[k as usize];
+            *v = m.col((e % 3) as usize)[(e / 3) as usize];
+        }
+        // ε I, far below every physical stiffness, makes the rigid translations invertible
+        let mean = self.diagonal.iter().map(|&d| self.values[d]).sum::<f64>() / self.diagonal.len() as f64;
+        if !(mean > 0.0 && mean.is_finite()) {
+            return Err(PreconditionError::Factor(format!("mean diagonal {mean}")));
+        }
+        for &d in &self.diagonal {
+            self.values[d] += 1e-10 * mean;
+        }
+        let n = self.rhs.len();
+        let a = SparseColMatRef::new(
+            SymbolicSparseColMatRef::new_checked(n, n, &self.col_ptr, None, &self.row_idx),
+            &self.values,
+        );
+        self.symbolic
+            .factorize_numeric_llt::<f64>(
+                &mut self.factor,
+                a,
+                Side::Lower,
+                LltRegularization::default(),
+                Par::Seq,
+                MemStack::new(&mut self.scratch),
+                Default::default(),
+            )
+            .map_err(|e| PreconditionError::Factor(format!("{e:?}")))?;
+        self.factored = true;
+        let [ua, uv] = &mut self.constraint;
+        let (ca, cv) = model.constraint_gradients(x, ua, uv);
+        let mut inverse_c = [0.0; 2];
+        for (k, c) in [ca, cv].into_iter().enumerate() {
+            let mut z = std::mem::take(&mut self.constraint_solved[k]);
+            if c > 0.0 {
+                z.copy_from_slice(&self.constraint[k]);
+                self.solve(&mut z);
+                inverse_c[k] = 1.0 / c;
+            } else {
+                // a switched-off constraint: u = 0 and a unit row in the capacitance matrix
+                self.constraint[k].iter_mut().for_each(|u| *u = DVec3::ZERO);
+                z.iter_mut().for_each(|u| *u = DVec3::ZERO);
+                inverse_c[k] = 1.0;
+            }
+            self.constraint_solved[k] = z;
+        }
+        let m = |a: usize, b: usize| dot(&self.constraint[a], &self.constraint_solved[b]);
+        let c = [[inverse_c[0] + m(0, 0), m(0, 1)], [m(1, 0), inverse_c[1] + m(1, 1)]];
+        let det = c[0][0] * c[1][1] - c[0][1] * c[1][0];
+        if !(det > 0.0 && det.is_finite()) {
+            self.factored = false;
+            return Err(PreconditionError::Factor(format!("capacitance matrix {c:?}")));
+        }
+        self.capacitance_inv = [[c[1][1] / det, -c[0][1] / det], [-c[1][0] / det, c[0][0] / det]];
+        Ok(())
+    }
+
+    /// v ← P₀⁻¹ v (the sparse part only).
+    fn solve(&mut self, v: &mut [DVec3]) {
+        for (r, p) in self.rhs.chunks_exact_mut(3).zip(v.iter()) {
+            r.copy_from_slice(&p.to_array());
+        }
+        let n = self.rhs.len();
+        LltRef::<usize, f64>::new(&self.symbolic, &self.factor).solve_in_place_with_conj(
+            Conj::No,
+            MatMut::from_column_major_slice_mut(&mut self.rhs, n, 1),
+            Par::Seq,
+            MemStack::new(&mut self.scratch),
+        );
+        for (p, r) in v.iter_mut().zip(self.rhs.chunks_exact(3)) {
+            *p = DVec3::new(r[0], r[1], r[2]);
+        }
+    }
+
+    /// True after a successful [`update`](Self::update).
+    pub fn is_factored(&self) -> bool {
+        self.factored
+    }
+
+    /// v ← P⁻¹ v with its mean (a rigid translation, which P resolves only through ε) removed;
+    /// false (v unchanged) if there is no factor.
+    pub fn apply(&mut self, v: &mut [DVec3]) -> bool {
+        if !self.factored {
+            return false;
+        }
+        self.solve(v);
+        // Woodbury: v −= P₀⁻¹U C⁻¹ Uᵀ v
+        let a = [dot(&self.constraint[0], v), dot(&self.constraint[1], v)];
+        let ci = &self.capacitance_inv;
+        let b = [ci[0][0] * a[0] + ci[0][1] * a[1], ci[1][0] * a[0] + ci[1][1] * a[1]];
+        let mut mean = DVec3::ZERO;
+        for ((p, za), zv) in v.iter_mut().zip(&self.constraint_solved[0]).zip(&self.constraint_solved[1]) {
+            *p -= *za * b[0] + *zv * b[1];
+            mean += *p;
+        }
+        mean /= v.len() as f64;
+        v.iter_mut().for_each(|p| *p -= mean);
+        true
+    }
+}
+
+fn dot(a: &[DVec3], b: &[DVec3]) -> f64 {
+    a.iter().zip(b).map(|(p, q)| p.dot(*q)).sum()
+}
