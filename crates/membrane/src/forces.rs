@@ -26,7 +26,7 @@ mod parallel;
 pub use parallel::ForceWorkspace;
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 use crate::mesh::Topology;
 use crate::params::{c_eq4, ModelParams};
