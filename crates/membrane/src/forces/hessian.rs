@@ -100,32 +100,6 @@ impl MembraneModel {
     }
 }
 
-impl MembraneModel {
-    /// The global constraints' curvatures d²E_A/dA² = k_a/A0 and d²E_V/dV² = k_v/V0, and the
-    /// gradients ∂A/∂x and ∂V/∂x at `x` (written to `ga`, `gv`): the two rank-one terms the
-    /// preconditioner adds by the Sherman–Morrison–Woodbury formula.
-    pub(crate) fn constraint_gradients(&self, x: &[DVec3], ga: &mut [DVec3], gv: &mut [DVec3]) -> (f64, f64) {
-        ga.iter_mut().chain(gv.iter_mut()).for_each(|g| *g = DVec3::ZERO);
-        let origin = x[0];
-        for tri in &self.triangles {
-            let idx = tri.map(|v| v as usize);
-            let [a, b, c] = idx.map(|v| x[v] - origin);
-            let n = (b - a).cross(c - a);
-            let nl = n.length();
-            if nl > 0.0 {
-                let g = kernels::area_gradient(n / nl, a, b, c);
-                for k in 0..3 {
-                    ga[idx[k]] += g[k];
-                }
-            }
-            gv[idx[0]] += b.cross(c) / 6.0;
-            gv[idx[1]] += c.cross(a) / 6.0;
-            gv[idx[2]] += a.cross(b) / 6.0;
-        }
-        (self.k_area / self.area0, self.k_volume / self.volume0)
-    }
-}
-
 /// a bᵀ.
 #[inline]
 pub(crate) fn outer(a: DVec3, b: DVec3) -> DMat3 {
@@ -263,5 +237,39 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// ∂A/∂x and ∂V/∂x of `constraint_gradients` against central differences of
+    /// `area_volume`, and the curvatures k_a/A0, k_v/V0.
+    #[test]
+    fn constraint_gradients_match_finite_differences() {
+        let c = constants();
+        let mesh = icosphere(2, 2.0 * c.l0 / 0.55);
+        let topo = mesh.topology().unwrap();
+        let model = MembraneModel::new(&topo, &mesh.vertices, &c, ReferenceState::StressFree).unwrap();
+        let x = jitter(&mesh.vertices, 0.1 * c.l0, 11);
+        let n = x.len();
+        let (mut ga, mut gv) = (vec![DVec3::ZERO; n], vec![DVec3::ZERO; n]);
+        let (ca, cv) = model.constraint_gradients(&x, &mut ga, &mut gv);
+        assert_eq!((ca, cv), (model.k_area / model.area0, model.k_volume / model.volume0));
+        let step = 1e-6 * c.l0;
+        let (mut worst_a, mut worst_v) = (0.0f64, 0.0f64);
+        let (sa, sv) = (
+            ga.iter().fold(0.0f64, |m, g| m.max(g.abs().max_element())),
+            gv.iter().fold(0.0f64, |m, g| m.max(g.abs().max_element())),
+        );
+        for i in 0..n {
+            for k in 0..3 {
+                let at = |s: f64| {
+                    let mut y = x.clone();
+                    y[i][k] += s;
+                    model.area_volume(&y).unwrap()
+                };
+                let ((ap, vp), (am, vm)) = (at(step), at(-step));
+                worst_a = worst_a.max(((ap - am) / (2.0 * step) - ga[i][k]).abs() / sa);
+                worst_v = worst_v.max(((vp - vm) / (2.0 * step) - gv[i][k]).abs() / sv);
+            }
+        }
+        assert!(worst_a < 1e-7 && worst_v < 1e-7, "∂A/∂x off by {worst_a:.1e}, ∂V/∂x by {worst_v:.1e}");
     }
 }
