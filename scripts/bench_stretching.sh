@@ -7,11 +7,13 @@
 # not counted). Take it on a quiet machine; give the load.
 #   scripts/bench_stretching.sh                 # N = 100 500 1000 5000 23867 (~3 min on 2 cores)
 #   SKIP_FINE=1 REF=DIR scripts/bench_stretching.sh   # no N = 23867 run; compare with DIR's
-# OUT (default runs/bench-stretching) keeps the runs; THREADS (default 2).
+# OUT (default runs/bench-stretching) keeps the runs; THREADS (default 2); PRECONDITIONER
+# (default gauss-newton; "none" for the plain L-BFGS of before issue 13's second pass).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-runs/bench-stretching}
 THREADS=${THREADS:-2}
+PRECONDITIONER=${PRECONDITIONER:-gauss-newton}
 NS=${NS:-"100 500 1000 5000"}
 cargo build --release --quiet
 mkdir -p "$OUT"
@@ -20,10 +22,11 @@ if [ -z "${SKIP_FINE:-}" ]; then
   REF="$OUT/n23867"
 fi
 REF=${REF:?with SKIP_FINE set, REF must name an earlier N = 23867 run directory}
+echo "preconditioner: $PRECONDITIONER, threads: $THREADS"
 echo "load before: $(cat /proc/loadavg)"
 for n in $NS; do
   ./target/release/hemodpd run scenarios/stretching.toml --set membrane.vertices=$n --set output.shapes=false \
-    --threads "$THREADS" --out "$OUT/n$n" --quiet
+    --set stretching.preconditioner=\"$PRECONDITIONER\" --threads "$THREADS" --out "$OUT/n$n" --quiet
 done
 echo "load after: $(cat /proc/loadavg)"
 python3 - "$OUT" "$REF" $NS <<'PY'
