@@ -19,8 +19,8 @@
 // `!(x < y)` is deliberate throughout: it is also true for NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
-pub mod kernels;
 pub(crate) mod hessian;
+pub mod kernels;
 mod parallel;
 
 pub use parallel::ForceWorkspace;

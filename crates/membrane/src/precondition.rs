@@ -290,7 +290,11 @@ impl Preconditioner {
         let ci = &self.capacitance_inv;
         let b = [ci[0][0] * a[0] + ci[0][1] * a[1], ci[1][0] * a[0] + ci[1][1] * a[1]];
         let mut mean = DVec3::ZERO;
-        for ((p, za), zv) in v.iter_mut().zip(&self.constraint_solved[0]).zip(&self.constraint_solved[1]) {
+        for ((p, za), zv) in v
+            .iter_mut()
+            .zip(&self.constraint_solved[0])
+            .zip(&self.constraint_solved[1])
+        {
             *p -= *za * b[0] + *zv * b[1];
             mean += *p;
         }
@@ -343,7 +347,13 @@ mod tests {
     /// and everything else to zero-mean vectors, so for a zero-mean v the two solutions agree.
     #[test]
     fn apply_is_the_dense_inverse() {
-        let c = MembraneConstants::from_params(&ModelParams::coarse_grained(500, 300.0).unwrap(), 1e-6, 1e-18, 2e-3, 1e3);
+        let c = MembraneConstants::from_params(
+            &ModelParams::coarse_grained(500, 300.0).unwrap(),
+            1e-6,
+            1e-18,
+            2e-3,
+            1e3,
+        );
         let mesh = icosphere(2, 2.0 * c.l0 / 0.55);
         let topo = mesh.topology().unwrap();
         let model = MembraneModel::new(&topo, &mesh.vertices, &c, ReferenceState::StressFree).unwrap();
@@ -374,7 +384,11 @@ mod tests {
         for r in 0..3 * n {
             for s in 0..3 * n {
                 let eps = m[r][s] - blocks[r][s];
-                assert!(if r == s { eps > 0.0 && eps < 1e-9 * m[r][r] } else { eps == 0.0 });
+                assert!(if r == s {
+                    eps > 0.0 && eps < 1e-9 * m[r][r]
+                } else {
+                    eps == 0.0
+                });
             }
         }
         let (ka, kv) = (model.k_area() / model.area0(), model.k_volume() / model.volume0());
@@ -389,7 +403,13 @@ mod tests {
         }
         for k in 0..3 {
             let mut v: Vec<DVec3> = (0..n)
-                .map(|i| DVec3::new(((i + k) as f64).sin(), ((i * 3 + k) as f64).cos(), ((i * 7) as f64 + k as f64).sin()))
+                .map(|i| {
+                    DVec3::new(
+                        ((i + k) as f64).sin(),
+                        ((i * 3 + k) as f64).cos(),
+                        ((i * 7) as f64 + k as f64).sin(),
+                    )
+                })
                 .collect();
             let mean = v.iter().copied().sum::<DVec3>() / n as f64;
             v.iter_mut().for_each(|a| *a -= mean);
@@ -402,7 +422,12 @@ mod tests {
             assert!(pc.apply(&mut v));
             let got = flat(&v);
             let norm = expected.iter().map(|a| a * a).sum::<f64>().sqrt();
-            let err = got.iter().zip(&expected).map(|(a, b)| (a - b).powi(2)).sum::<f64>().sqrt();
+            let err = got
+                .iter()
+                .zip(&expected)
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>()
+                .sqrt();
             assert!(err < 1e-8 * norm, "|P⁻¹v − dense| = {err:.2e} of {norm:.2e}");
         }
     }

@@ -228,7 +228,10 @@ pub fn stretch_from(
         }
         // P from the start shape, once per force; if it cannot be built there (a link at its
         // limit, say) this force runs unpreconditioned
-        let preconditioned = solver.precondition.as_mut().is_some_and(|p| p.update(model, &x).is_ok());
+        let preconditioned = solver
+            .precondition
+            .as_mut()
+            .is_some_and(|p| p.update(model, &x).is_ok());
         let Some((iterations, residual)) = solver
             .minimize(&mut x, objective, opts.tolerance, opts.max_iterations, &stop)
             .map_err(|source| StretchError::Force { force, source })?

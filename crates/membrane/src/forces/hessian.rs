@@ -114,7 +114,13 @@ mod tests {
     use crate::params::ModelParams;
 
     fn constants() -> MembraneConstants {
-        MembraneConstants::from_params(&ModelParams::coarse_grained(500, 300.0).unwrap(), 1e-6, 1e-18, 1e-3, 1e3)
+        MembraneConstants::from_params(
+            &ModelParams::coarse_grained(500, 300.0).unwrap(),
+            1e-6,
+            1e-18,
+            1e-3,
+            1e3,
+        )
     }
 
     /// Deterministic deviates in [−1, 1).
@@ -270,6 +276,9 @@ mod tests {
                 worst_v = worst_v.max(((vp - vm) / (2.0 * step) - gv[i][k]).abs() / sv);
             }
         }
-        assert!(worst_a < 1e-7 && worst_v < 1e-7, "∂A/∂x off by {worst_a:.1e}, ∂V/∂x by {worst_v:.1e}");
+        assert!(
+            worst_a < 1e-7 && worst_v < 1e-7,
+            "∂A/∂x off by {worst_a:.1e}, ∂V/∂x by {worst_v:.1e}"
+        );
     }
 }
