@@ -710,7 +710,10 @@ mod tests {
     /// wrap and merge unevenly), random velocities; type pair (1, 1) has a shorter cutoff 0.8
     /// and (0, 1) no interaction at all, to exercise the per-type cutoffs.
     fn setup(kbt: Real) -> (CellList, KernelTable<DpdLinear>, KernelTable<DpdLinear>) {
-        let l = DVec3::new(6.3, 5.1, 4.7);
+        setup_in(DVec3::new(6.3, 5.1, 4.7), kbt)
+    }
+
+    fn setup_in(l: DVec3, kbt: Real) -> (CellList, KernelTable<DpdLinear>, KernelTable<DpdLinear>) {
         let domain = PeriodicBox::new(l).unwrap();
         let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(7);
         let mut u = || (rng.next_u64() >> 11) as Real / (1u64 << 53) as Real;
@@ -809,5 +812,52 @@ mod tests {
         };
         assert!(all_schemes(&cl, &cold, run(9)) == all_schemes(&cl, &cold, run(10)));
         assert!(all_schemes(&cl, &hot, run(9)) != all_schemes(&cl, &hot, run(10)));
+    }
+    /// Both schemes find every pair: their forces equal a brute-force sum over all pairs with the
+    /// minimum image, for one and two types (a shorter cutoff and a non-interacting pair), in a
+    /// box whose cells are larger than the cutoff and in one whose cells are exactly the cutoff
+    /// (particles at a cell face are at zero distance from the next cell).
+    #[test]
+    fn every_scheme_equals_the_brute_force_sum() {
+        for l in [DVec3::new(6.3, 5.1, 4.7), DVec3::new(5.0, 4.0, 3.0)] {
+            let (cl, one, two) = setup_in(l, 1.0);
+            let run = Run {
+                key: 5,
+                isa: Isa::best(),
+            };
+            for t in [&one, &two] {
+                let ty = |i: usize| if t.ntypes() == 1 { 0 } else { cl.ptype[i] as usize };
+                let n = cl.pos.len();
+                let mut pairs = 0;
+                let brute: Vec<DVec3> = (0..n)
+                    .map(|i| {
+                        let mut f = DVec3::ZERO;
+                        for j in (0..n).filter(|&j| j != i) {
+                            let mut dr = cl.pos[i] - cl.pos[j];
+                            dr -= l * (dr / l).round();
+                            let (r2, k) = (dr.length_squared(), t.get(ty(i), ty(j)));
+                            if r2 < k.cutoff2() {
+                                pairs += 1;
+                                f += k.force(dr, r2, cl.vel[i] - cl.vel[j], pair_xi(run.key, cl.id[i], cl.id[j]));
+                            }
+                        }
+                        f
+                    })
+                    .collect();
+                assert!(pairs > 2000, "{pairs} pairs");
+                for (k, (f, _)) in all_schemes(&cl, t, run).iter().enumerate().filter(|(k, _)| k % 4 < 2) {
+                    for i in 0..n {
+                        let err = (f[i] - brute[i]).length();
+                        assert!(
+                            err < 1e-9 * (1.0 + brute[i].length()),
+                            "box {l}, {} types, scheme {k}: particle {i}: {} vs {}",
+                            t.ntypes(),
+                            f[i],
+                            brute[i]
+                        );
+                    }
+                }
+            }
+        }
     }
 }
