@@ -431,4 +431,29 @@ mod tests {
             assert!(err < 1e-8 * norm, "|P⁻¹v − dense| = {err:.2e} of {norm:.2e}");
         }
     }
+
+    /// A shape where P cannot be built (a link stretched past its maximum extension) is an
+    /// error, and the preconditioner then refuses to apply until a good update.
+    #[test]
+    fn a_failed_update_leaves_no_factor() {
+        let c = MembraneConstants::from_params(&ModelParams::coarse_grained(500, 300.0).unwrap(), 1e-6, 1e-18, 2e-3, 1e3);
+        let mesh = icosphere(2, 2.0 * c.l0 / 0.55);
+        let topo = mesh.topology().unwrap();
+        let model = MembraneModel::new(&topo, &mesh.vertices, &c, ReferenceState::StressFree).unwrap();
+        let mut pc = Preconditioner::new(&model).unwrap();
+        pc.update(&model, &mesh.vertices).unwrap();
+        assert!(pc.is_factored());
+        let mut torn = mesh.vertices.clone();
+        torn[0] *= 5.0;
+        assert!(matches!(
+            pc.update(&model, &torn),
+            Err(PreconditionError::Force(ForceError::LinkOverstretched { .. }))
+        ));
+        assert!(!pc.is_factored());
+        let mut v = vec![DVec3::X; torn.len()];
+        assert!(!pc.apply(&mut v));
+        assert!(v.iter().all(|&a| a == DVec3::X));
+        pc.update(&model, &mesh.vertices).unwrap();
+        assert!(pc.apply(&mut v));
+    }
 }
