@@ -436,7 +436,13 @@ mod tests {
     /// error, and the preconditioner then refuses to apply until a good update.
     #[test]
     fn a_failed_update_leaves_no_factor() {
-        let c = MembraneConstants::from_params(&ModelParams::coarse_grained(500, 300.0).unwrap(), 1e-6, 1e-18, 2e-3, 1e3);
+        let c = MembraneConstants::from_params(
+            &ModelParams::coarse_grained(500, 300.0).unwrap(),
+            1e-6,
+            1e-18,
+            2e-3,
+            1e3,
+        );
         let mesh = icosphere(2, 2.0 * c.l0 / 0.55);
         let topo = mesh.topology().unwrap();
         let model = MembraneModel::new(&topo, &mesh.vertices, &c, ReferenceState::StressFree).unwrap();
