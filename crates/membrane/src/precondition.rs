@@ -315,6 +315,21 @@ mod tests {
     use crate::forces::{MembraneConstants, ReferenceState};
     use crate::params::ModelParams;
 
+    /// The N = 500 constants (µm, pN) on a 162-vertex icosphere with links ≈ L0, stress-free.
+    fn icosphere_model() -> (MembraneConstants, crate::mesh::Mesh, MembraneModel) {
+        let params = ModelParams::coarse_grained(500, 300.0).unwrap();
+        let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, 2e-3, 1e3);
+        let mesh = icosphere(2, 2.0 * c.l0 / 0.55);
+        let model = MembraneModel::new(
+            &mesh.topology().unwrap(),
+            &mesh.vertices,
+            &c,
+            ReferenceState::StressFree,
+        )
+        .unwrap();
+        (c, mesh, model)
+    }
+
     /// Solves m z = b by Gaussian elimination with partial pivoting (m is consumed).
     fn dense_solve(mut m: Vec<Vec<f64>>, mut b: Vec<f64>) -> Vec<f64> {
         let n = b.len();
@@ -347,16 +362,7 @@ mod tests {
     /// and everything else to zero-mean vectors, so for a zero-mean v the two solutions agree.
     #[test]
     fn apply_is_the_dense_inverse() {
-        let c = MembraneConstants::from_params(
-            &ModelParams::coarse_grained(500, 300.0).unwrap(),
-            1e-6,
-            1e-18,
-            2e-3,
-            1e3,
-        );
-        let mesh = icosphere(2, 2.0 * c.l0 / 0.55);
-        let topo = mesh.topology().unwrap();
-        let model = MembraneModel::new(&topo, &mesh.vertices, &c, ReferenceState::StressFree).unwrap();
+        let (c, mesh, model) = icosphere_model();
         // a stretched, rough shape: links under tension and compression, folded dihedrals
         let x: Vec<DVec3> = mesh
             .vertices
@@ -436,16 +442,7 @@ mod tests {
     /// error, and the preconditioner then refuses to apply until a good update.
     #[test]
     fn a_failed_update_leaves_no_factor() {
-        let c = MembraneConstants::from_params(
-            &ModelParams::coarse_grained(500, 300.0).unwrap(),
-            1e-6,
-            1e-18,
-            2e-3,
-            1e3,
-        );
-        let mesh = icosphere(2, 2.0 * c.l0 / 0.55);
-        let topo = mesh.topology().unwrap();
-        let model = MembraneModel::new(&topo, &mesh.vertices, &c, ReferenceState::StressFree).unwrap();
+        let (_, mesh, model) = icosphere_model();
         let mut pc = Preconditioner::new(&model).unwrap();
         pc.update(&model, &mesh.vertices).unwrap();
         assert!(pc.is_factored());
