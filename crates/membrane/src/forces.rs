@@ -651,11 +651,8 @@ impl MembraneModel {
         }
 
         if terms.bending && self.k_bend != 0.0 {
-            for (k, d) in self.dihedrals.iter().enumerate() {
-                let idx = d.map(|v| v as usize);
-                let [a, b, c, dd] = idx.map(|v| x[v]);
-                let (cos_t, sin_t, g) =
-                    kernels::dihedral(a, b, c, dd).ok_or(ForceError::DegenerateDihedral { pair: k, vertices: *d })?;
+            for k in 0..self.dihedrals.len() {
+                let (idx, cos_t, sin_t, g) = self.dihedral_at(k, x)?;
                 // E = k [1 − cos(θ − θ0)], −dE/dθ = −k sin(θ − θ0) = −k (sin θ cos θ0 − cos θ sin θ0)
                 e.bending += self.k_bend * (1.0 - cos_t * self.cos_theta0 - sin_t * self.sin_theta0);
                 let s = -self.k_bend * (sin_t * self.cos_theta0 - cos_t * self.sin_theta0);
@@ -665,6 +662,17 @@ impl MembraneModel {
             }
         }
         Ok(e)
+    }
+
+    /// Dihedral k at `x`: its vertex indices, cos θ, sin θ and ∂θ/∂(its four vertices).
+    #[inline(always)]
+    pub(crate) fn dihedral_at(&self, k: usize, x: &[DVec3]) -> Result<([usize; 4], f64, f64, [DVec3; 4]), ForceError> {
+        let d = &self.dihedrals[k];
+        let idx = d.map(|v| v as usize);
+        let [a, b, c, dd] = idx.map(|v| x[v]);
+        let (cos_t, sin_t, g) =
+            kernels::dihedral(a, b, c, dd).ok_or(ForceError::DegenerateDihedral { pair: k, vertices: *d })?;
+        Ok((idx, cos_t, sin_t, g))
     }
 
     /// Total area and enclosed volume of `x` (flat triangles); checks for degenerate triangles.

@@ -471,13 +471,18 @@ impl Lbfgs {
             }
         }
         // initial inverse Hessian P⁻¹, or γ I with γ = s·y / y·y of the newest pair
-        let preconditioned = self.precondition.as_mut().is_some_and(|p| p.apply(d));
-        if !preconditioned {
+        // (the γ pass also computes the dot product the next pass needs)
+        let mut yd = 0.0;
+        if self.precondition.as_mut().is_some_and(|p| p.apply(d)) {
+            yd = dot(&self.pairs[0].y, d);
+        } else {
             let last = &self.pairs[k - 1];
             let gamma = 1.0 / (last.rho * last.yy);
-            d.iter_mut().for_each(|dj| *dj *= gamma);
+            for (dj, yj) in d.iter_mut().zip(&self.pairs[0].y) {
+                *dj *= gamma;
+                yd += yj.dot(*dj);
+            }
         }
-        let mut yd = dot(&self.pairs[0].y, d);
         // oldest to newest: β = ρ_i y_i·d, d += (α_i − β) s_i; the last pass also negates d
         for i in 0..k {
             let c = alphas[i] - self.pairs[i].rho * yd;

@@ -58,11 +58,8 @@ impl MembraneModel {
             h.add_outer(&idx, &g, 2.0 * self.tri_c[t] / (area * area * area));
         }
         if terms.bending && self.k_bend != 0.0 {
-            for (k, d) in self.dihedrals.iter().enumerate() {
-                let idx = d.map(|v| v as usize);
-                let [a, b, c, dd] = idx.map(|v| x[v]);
-                let (cos_t, sin_t, g) =
-                    kernels::dihedral(a, b, c, dd).ok_or(ForceError::DegenerateDihedral { pair: k, vertices: *d })?;
+            for k in 0..self.dihedrals.len() {
+                let (idx, cos_t, sin_t, g) = self.dihedral_at(k, x)?;
                 // d²/dθ² k [1 − cos(θ − θ0)] = k cos(θ − θ0)
                 let curvature = self.k_bend * (cos_t * self.cos_theta0 + sin_t * self.sin_theta0);
                 if curvature > 0.0 {
