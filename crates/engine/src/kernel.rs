@@ -20,6 +20,23 @@ pub trait PairKernel: Copy + Send + Sync + 'static {
     /// Whether the random force is on (σ ≠ 0 and the pair enabled). For a pair that is not
     /// (zero temperature, a repulsion-only pair) the loops pass ξ = 0 and compute no hash.
     fn noisy(&self) -> bool;
+    /// The parameters of the linear kernel when this is one ([`DpdLinear`]), so that the pair
+    /// loops may evaluate its forces several pairs at a time with the same operations.
+    #[inline(always)]
+    fn linear(&self) -> Option<LinearParams> {
+        None
+    }
+}
+
+/// What [`DpdLinear::force`] needs besides the pair: 1/rc, a, γ, σ/√Δt, and whether the random
+/// force is on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LinearParams {
+    pub inv_rc: Real,
+    pub a: Real,
+    pub gamma: Real,
+    pub sigma_dt: Real,
+    pub noisy: bool,
 }
 
 /// Groot–Warren DPD with w^R = 1 − r/rc (s = 1): the specialised common case (no `powf`).
@@ -67,6 +84,17 @@ impl PairKernel for DpdLinear {
         // a w − γ w² (e·v) + σ w ξ/√Δt, times e = dr/r
         let mag = w * (self.a - self.gamma * w * edv + self.sigma_dt * xi);
         dr * (mag * inv_r)
+    }
+
+    #[inline(always)]
+    fn linear(&self) -> Option<LinearParams> {
+        Some(LinearParams {
+            inv_rc: self.inv_rc,
+            a: self.a,
+            gamma: self.gamma,
+            sigma_dt: self.sigma_dt,
+            noisy: self.noisy(),
+        })
     }
 }
 

@@ -8,13 +8,15 @@
 
 use crate::Real;
 
-const GOLDEN: u64 = 0x9E37_79B9_7F4A_7C15;
+pub(crate) const GOLDEN: u64 = 0x9E37_79B9_7F4A_7C15;
+/// The two multipliers of [`mix64`].
+pub(crate) const MIX: [u64; 2] = [0xBF58_476D_1CE4_E5B9, 0x94D0_49BB_1331_11EB];
 
 /// The SplitMix64 finaliser (Stafford's mix 13): a bijection of u64 with full avalanche.
 #[inline(always)]
 pub fn mix64(mut z: u64) -> u64 {
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z = (z ^ (z >> 30)).wrapping_mul(MIX[0]);
+    z = (z ^ (z >> 27)).wrapping_mul(MIX[1]);
     z ^ (z >> 31)
 }
 
@@ -32,8 +34,8 @@ pub fn pair_hash(key: u64, a: u32, b: u32) -> u64 {
     mix64(key.wrapping_add(((lo << 32) | hi).wrapping_mul(GOLDEN)))
 }
 
-const SQRT3: Real = 1.732_050_807_568_877_2;
-const XI_SCALE: Real = 2.0 * SQRT3 / 9_007_199_254_740_992.0; // 2√3 / 2^53
+pub(crate) const SQRT3: Real = 1.732_050_807_568_877_2;
+pub(crate) const XI_SCALE: Real = 2.0 * SQRT3 / 9_007_199_254_740_992.0; // 2√3 / 2^53
 
 /// Symmetric zero-mean, unit-variance uniform random number ξ ∈ [−√3, √3) of the pair (a, b).
 #[inline(always)]

@@ -296,3 +296,222 @@ pub(crate) unsafe fn scan_avx512<const POST: bool>(
     }
     n
 }
+
+/// The distance test of a whole cell's particles against the sorted candidates `a..e`, 8 at a
+/// time (AVX-512 F + VL): each chunk of candidates is loaded once and tested against every
+/// query point `qs[k]`, whose hits are appended at `ns[k]` (and `ns[k]` advanced). For every k
+/// the hits, their order and their values are those of [`scan_avx512`] with `p = qs[k]`
+/// (`POST = false`) and one cutoff² `rc2`. With `own = Some(i0)` query k is the sorted particle
+/// i0 + k and only candidates j > i0 + k count (the cell's own later particles).
+///
+/// # Safety
+/// As [`scan_avx512`]. Panics unless the positions hold `e + 7` entries and each query's hit
+/// region has room for `(e − a) + 8` more entries in `out`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn scan_cell_avx512(
+    [px, py, pz]: [&[Real]; 3],
+    rc2: Real,
+    a: usize,
+    e: usize,
+    own: Option<usize>,
+    qs: &[[Real; 3]],
+    out: &mut HitArrays,
+    ns: &mut [usize],
+) {
+    if a >= e {
+        return;
+    }
+    let end = e + 7;
+    assert!(
+        px.len() >= end && py.len() >= end && pz.len() >= end,
+        "positions not padded"
+    );
+    assert!(ns.len() >= qs.len(), "one hit count per query");
+    let len = out
+        .j
+        .len()
+        .min(out.dx.len())
+        .min(out.dy.len())
+        .min(out.dz.len())
+        .min(out.r2.len());
+    assert!(
+        ns[..qs.len()].iter().all(|&n| n + (e - a) + 8 <= len),
+        "hit arrays too short"
+    );
+    let zero = _mm512_setzero_pd();
+    let rc2v = _mm512_set1_pd(rc2);
+    let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let (px, py, pz) = (px.as_ptr(), py.as_ptr(), pz.as_ptr());
+    let (oj, ox, oy, oz, or) = (
+        out.j.as_mut_ptr(),
+        out.dx.as_mut_ptr(),
+        out.dy.as_mut_ptr(),
+        out.dz.as_mut_ptr(),
+        out.r2.as_mut_ptr(),
+    );
+    let nq = qs.len();
+    let (qp, np) = (qs.as_ptr(), ns.as_mut_ptr());
+    let mut j = a;
+    while j < e {
+        // SAFETY: j + 7 < e + 7 ≤ the padded lengths; each query's stores are at
+        // ns[k] .. ns[k] + 8, which stays within the room asserted above (ns[k] grows by at most
+        // e − a over the scan); k < nq ≤ ns.len().
+        unsafe {
+            let x = _mm512_loadu_pd(px.add(j));
+            let y = _mm512_loadu_pd(py.add(j));
+            let z = _mm512_loadu_pd(pz.add(j));
+            let valid = e - j;
+            let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
+            let js = _mm256_add_epi32(_mm256_set1_epi32(j as i32), lane);
+            for k in 0..nq {
+                let q = &*qp.add(k);
+                let dx = _mm512_sub_pd(_mm512_set1_pd(q[0]), x);
+                let dy = _mm512_sub_pd(_mm512_set1_pd(q[1]), y);
+                let dz = _mm512_sub_pd(_mm512_set1_pd(q[2]), z);
+                let r2 = _mm512_add_pd(
+                    _mm512_add_pd(_mm512_mul_pd(dx, dx), _mm512_mul_pd(dy, dy)),
+                    _mm512_mul_pd(dz, dz),
+                );
+                let mut mask =
+                    _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(tail, r2, rc2v) & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(r2, zero);
+                if let Some(i0) = own {
+                    mask &= _mm256_cmpgt_epi32_mask(js, _mm256_set1_epi32((i0 + k) as i32));
+                }
+                let n = *np.add(k);
+                _mm256_storeu_si256(oj.add(n).cast(), _mm256_maskz_compress_epi32(mask, js));
+                _mm512_storeu_pd(ox.add(n), _mm512_maskz_compress_pd(mask, dx));
+                _mm512_storeu_pd(oy.add(n), _mm512_maskz_compress_pd(mask, dy));
+                _mm512_storeu_pd(oz.add(n), _mm512_maskz_compress_pd(mask, dz));
+                _mm512_storeu_pd(or.add(n), _mm512_maskz_compress_pd(mask, r2));
+                *np.add(k) = n + mask.count_ones() as usize;
+            }
+        }
+        j += 8;
+    }
+}
+
+/// The forces of [`crate::kernel::DpdLinear`] for the hits `lo..hi` of `h` (sorted indices and
+/// separations) on a particle with velocity `vi` and id `idi`, 8 pairs at a time (AVX-512 F,
+/// VL and DQ), written to `out[k − lo]`. Each lane runs the operations of
+/// `DpdLinear::force` and `rng::pair_xi` in their order (no fused multiply–add), so every force
+/// equals the scalar one bit for bit.
+///
+/// # Safety
+/// Only to be called from a function compiled with AVX-512 F, VL and DQ enabled on a CPU that
+/// has them. Panics unless `h`'s arrays hold `hi + 7` entries, `out` holds `hi − lo + 7`, and
+/// every index `h.j[lo..hi]` is below `vel.len() == id.len()`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn linear_forces_avx512(
+    h: &HitArrays,
+    (lo, hi): (usize, usize),
+    vel: &[glam::DVec3],
+    id: &[u32],
+    vi: glam::DVec3,
+    idi: u32,
+    key: u64,
+    p: crate::kernel::LinearParams,
+    out: &mut [[Real; 3]],
+) {
+    use crate::rng::{GOLDEN, MIX, SQRT3, XI_SCALE};
+    if lo >= hi {
+        return;
+    }
+    let len =
+        h.j.len()
+            .min(h.dx.len())
+            .min(h.dy.len())
+            .min(h.dz.len())
+            .min(h.r2.len());
+    assert!(len >= hi + 7 && out.len() >= hi - lo + 7, "force arrays too short");
+    assert!(
+        vel.len() == id.len() && vel.len() < (i32::MAX / 3) as usize,
+        "one id per velocity"
+    );
+    let n = _mm256_set1_epi32(vel.len() as i32);
+    let (one, inv_rc, a, gamma, sigma_dt) = (
+        _mm512_set1_pd(1.0),
+        _mm512_set1_pd(p.inv_rc),
+        _mm512_set1_pd(p.a),
+        _mm512_set1_pd(p.gamma),
+        _mm512_set1_pd(p.sigma_dt),
+    );
+    let (vix, viy, viz) = (_mm512_set1_pd(vi.x), _mm512_set1_pd(vi.y), _mm512_set1_pd(vi.z));
+    let idv = _mm256_set1_epi32(idi as i32);
+    let vp = vel.as_ptr().cast::<Real>();
+    let mut k = lo;
+    while k < hi {
+        // SAFETY: k + 7 < hi + 7 ≤ the asserted lengths; the gathers read only the lanes below
+        // hi, whose indices were checked against vel.len() just before.
+        unsafe {
+            let valid = hi - k;
+            let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
+            let j = _mm256_loadu_si256(h.j.as_ptr().add(k).cast());
+            assert!(_mm256_mask_cmpge_epu32_mask(tail, j, n) == 0, "hit index out of range");
+            let dx = _mm512_loadu_pd(h.dx.as_ptr().add(k));
+            let dy = _mm512_loadu_pd(h.dy.as_ptr().add(k));
+            let dz = _mm512_loadu_pd(h.dz.as_ptr().add(k));
+            let r2 = _mm512_loadu_pd(h.r2.as_ptr().add(k));
+            let j3 = _mm256_mullo_epi32(j, _mm256_set1_epi32(3));
+            let zero = _mm512_setzero_pd();
+            let vjx = _mm512_mask_i32gather_pd::<8>(zero, tail, j3, vp);
+            let vjy = _mm512_mask_i32gather_pd::<8>(zero, tail, j3, vp.add(1));
+            let vjz = _mm512_mask_i32gather_pd::<8>(zero, tail, j3, vp.add(2));
+            let xi = if p.noisy {
+                let idj = _mm256_mmask_i32gather_epi32::<4>(_mm256_setzero_si256(), tail, j, id.as_ptr().cast());
+                let lo32 = _mm512_cvtepu32_epi64(_mm256_min_epu32(idv, idj));
+                let hi32 = _mm512_cvtepu32_epi64(_mm256_max_epu32(idv, idj));
+                let pos = _mm512_or_si512(_mm512_slli_epi64::<32>(lo32), hi32);
+                let mut z = _mm512_add_epi64(
+                    _mm512_set1_epi64(key as i64),
+                    _mm512_mullo_epi64(pos, _mm512_set1_epi64(GOLDEN as i64)),
+                );
+                z = _mm512_mullo_epi64(
+                    _mm512_xor_si512(z, _mm512_srli_epi64::<30>(z)),
+                    _mm512_set1_epi64(MIX[0] as i64),
+                );
+                z = _mm512_mullo_epi64(
+                    _mm512_xor_si512(z, _mm512_srli_epi64::<27>(z)),
+                    _mm512_set1_epi64(MIX[1] as i64),
+                );
+                z = _mm512_xor_si512(z, _mm512_srli_epi64::<31>(z));
+                let u = _mm512_cvtepu64_pd(_mm512_srli_epi64::<11>(z));
+                _mm512_sub_pd(_mm512_mul_pd(u, _mm512_set1_pd(XI_SCALE)), _mm512_set1_pd(SQRT3))
+            } else {
+                zero
+            };
+            let r = _mm512_sqrt_pd(r2);
+            let inv_r = _mm512_div_pd(one, r);
+            let w = _mm512_sub_pd(one, _mm512_mul_pd(r, inv_rc));
+            let (dvx, dvy, dvz) = (
+                _mm512_sub_pd(vix, vjx),
+                _mm512_sub_pd(viy, vjy),
+                _mm512_sub_pd(viz, vjz),
+            );
+            let dot = _mm512_add_pd(
+                _mm512_add_pd(_mm512_mul_pd(dx, dvx), _mm512_mul_pd(dy, dvy)),
+                _mm512_mul_pd(dz, dvz),
+            );
+            let edv = _mm512_mul_pd(dot, inv_r);
+            let inner = _mm512_add_pd(
+                _mm512_sub_pd(a, _mm512_mul_pd(_mm512_mul_pd(gamma, w), edv)),
+                _mm512_mul_pd(sigma_dt, xi),
+            );
+            let s = _mm512_mul_pd(_mm512_mul_pd(w, inner), inv_r);
+            let (fx, fy, fz) = (_mm512_mul_pd(dx, s), _mm512_mul_pd(dy, s), _mm512_mul_pd(dz, s));
+            // interleave to [x, y, z] per pair
+            let mut t = [[0.0; 8]; 3];
+            _mm512_storeu_pd(t[0].as_mut_ptr(), fx);
+            _mm512_storeu_pd(t[1].as_mut_ptr(), fy);
+            _mm512_storeu_pd(t[2].as_mut_ptr(), fz);
+            let o = out.as_mut_ptr().add(k - lo);
+            for l in 0..8 {
+                *o.add(l) = [t[0][l], t[1][l], t[2][l]];
+            }
+        }
+        k += 8;
+    }
+}
