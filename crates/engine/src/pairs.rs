@@ -611,13 +611,12 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
             simd::linear_forces_avx512(&hits.h, (lo, hi), &cl.vel, &cl.id, cl.vel[i], cl.id[i], key, lp, fbuf);
         }
         let mut fi = DVec3::ZERO;
-        for (kk, f) in (lo..hi).zip(fbuf.iter()) {
+        for (kk, (&j, f)) in (lo..).zip(hits.h.j[lo..hi].iter().zip(fbuf.iter())) {
             let f = DVec3::from_array(*f);
-            let (j, dr, _) = hits.get(kk);
             fi += f;
-            win.add(j, -f);
+            win.add(j as usize, -f);
             if V {
-                *vir += outer(dr, f);
+                *vir += outer(hits.get(kk).1, f);
             }
         }
         win.add(i, fi);
