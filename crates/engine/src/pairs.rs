@@ -455,6 +455,9 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     let (mut prev, mut prev_ns, mut pending) = (Hits::default(), Vec::new(), None);
     let mut fbuf: Vec<[Real; 3]> = Vec::new();
     let linear = if ONE { table.row(0)[0].linear() } else { None };
+    // What the forces of a cell at a time need: the kernel row, the noise key, the linear
+    // kernel's parameters (one type only).
+    let kern = (table.row(0), run.key, linear);
     for z in z0..z1 {
         for y in 0..ny {
             for x in 0..nx {
@@ -528,17 +531,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     // its hits are read well after they were stored (a load right after the
                     // compressing stores cannot be forwarded from them and stalls).
                     if let Some(p) = pending {
-                        cell_forces::<K, V, ONE>(
-                            cl,
-                            table.row(0),
-                            run.key,
-                            linear,
-                            (&prev, &prev_ns),
-                            p,
-                            &mut fbuf,
-                            win,
-                            &mut vir,
-                        );
+                        cell_forces::<K, V, ONE>(cl, kern, (&prev, &prev_ns), p, &mut fbuf, win, &mut vir);
                     }
                     std::mem::swap(&mut hits, &mut prev);
                     std::mem::swap(&mut ns, &mut prev_ns);
@@ -562,17 +555,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
         }
     }
     if let Some(p) = pending {
-        cell_forces::<K, V, ONE>(
-            cl,
-            table.row(0),
-            run.key,
-            linear,
-            (&prev, &prev_ns),
-            p,
-            &mut fbuf,
-            win,
-            &mut vir,
-        );
+        cell_forces::<K, V, ONE>(cl, kern, (&prev, &prev_ns), p, &mut fbuf, win, &mut vir);
     }
     vir
 }
@@ -586,9 +569,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
 #[allow(clippy::too_many_arguments)]
 fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
-    row: &[K],
-    key: u64,
-    linear: Option<LinearParams>,
+    (row, key, linear): (&[K], u64, Option<LinearParams>),
     (hits, ns): (&Hits, &[usize]),
     (s0, s1, stride): (usize, usize, usize),
     fbuf: &mut Vec<[Real; 3]>,

@@ -68,6 +68,60 @@ impl HitArrays {
     }
 }
 
+/// Raw pointers to the arrays of [`HitArrays`], for the unchecked stores of a scan.
+#[derive(Clone, Copy)]
+pub(crate) struct HitPtrs {
+    j: *mut u32,
+    dx: *mut Real,
+    dy: *mut Real,
+    dz: *mut Real,
+    r2: *mut Real,
+}
+
+impl HitArrays {
+    fn ptrs(&mut self) -> HitPtrs {
+        HitPtrs {
+            j: self.j.as_mut_ptr(),
+            dx: self.dx.as_mut_ptr(),
+            dy: self.dy.as_mut_ptr(),
+            dz: self.dz.as_mut_ptr(),
+            r2: self.r2.as_mut_ptr(),
+        }
+    }
+}
+
+/// r² = (dx² + dy²) + dz², as the scalar loop and `DVec3::dot` evaluate it.
+///
+/// # Safety
+/// As [`scan_avx512`] (AVX-512 F enabled in the caller).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn r2_512(dx: __m512d, dy: __m512d, dz: __m512d) -> __m512d {
+    _mm512_add_pd(
+        _mm512_add_pd(_mm512_mul_pd(dx, dx), _mm512_mul_pd(dy, dy)),
+        _mm512_mul_pd(dz, dz),
+    )
+}
+
+/// Stores the lanes of `mask` (sorted index `js`, separation and r² `v`), packed to the front,
+/// at hit `n` of `o`, and returns the new hit count.
+///
+/// # Safety
+/// As [`scan_avx512`]; `o`'s arrays must have room for 8 entries from n.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn append_512(o: HitPtrs, n: usize, mask: u8, js: __m256i, v: [__m512d; 4]) -> usize {
+    // SAFETY: the caller guarantees the room.
+    unsafe {
+        _mm256_storeu_si256(o.j.add(n).cast(), _mm256_maskz_compress_epi32(mask, js));
+        _mm512_storeu_pd(o.dx.add(n), _mm512_maskz_compress_pd(mask, v[0]));
+        _mm512_storeu_pd(o.dy.add(n), _mm512_maskz_compress_pd(mask, v[1]));
+        _mm512_storeu_pd(o.dz.add(n), _mm512_maskz_compress_pd(mask, v[2]));
+        _mm512_storeu_pd(o.r2.add(n), _mm512_maskz_compress_pd(mask, v[3]));
+    }
+    n + mask.count_ones() as usize
+}
+
 /// Panics unless a scan of `a..e` in chunks of `L` lanes can read and write without bounds
 /// checks: the inputs padded to `e + L − 1`, the hit arrays `n + (e − a) + L` long.
 #[inline(always)]
@@ -136,13 +190,7 @@ pub(crate) unsafe fn scan_avx2<const POST: bool>(
     // stays below n + (e − a): check both ends once, then use unchecked pointers.
     check_room::<4>([px, py, pz], cutoff, out, a, e, n);
     let (px, py, pz) = (px.as_ptr(), py.as_ptr(), pz.as_ptr());
-    let (oj, ox, oy, oz, or) = (
-        out.j.as_mut_ptr(),
-        out.dx.as_mut_ptr(),
-        out.dy.as_mut_ptr(),
-        out.dz.as_mut_ptr(),
-        out.r2.as_mut_ptr(),
-    );
+    let o = out.ptrs();
     let mut j = a;
     while j < e {
         // SAFETY: j + 3 < e + 3 ≤ the padded lengths asserted above; the stores are at
@@ -189,13 +237,13 @@ pub(crate) unsafe fn scan_avx2<const POST: bool>(
             // Compress the hits to the front of each vector and store them at n (the lanes past
             // the hits are overwritten by the next chunk or ignored).
             let lanes = _mm_loadu_si128(PACK.as_ptr().add(mask).cast());
-            _mm_storeu_si128(oj.add(n).cast(), _mm_add_epi32(_mm_set1_epi32(j as i32), lanes));
+            _mm_storeu_si128(o.j.add(n).cast(), _mm_add_epi32(_mm_set1_epi32(j as i32), lanes));
             let perm = _mm256_loadu_si256(PACK64.as_ptr().add(mask).cast());
             let pack = |v: __m256d| _mm256_castsi256_pd(_mm256_permutevar8x32_epi32(_mm256_castpd_si256(v), perm));
-            _mm256_storeu_pd(ox.add(n), pack(dx));
-            _mm256_storeu_pd(oy.add(n), pack(dy));
-            _mm256_storeu_pd(oz.add(n), pack(dz));
-            _mm256_storeu_pd(or.add(n), pack(r2));
+            _mm256_storeu_pd(o.dx.add(n), pack(dx));
+            _mm256_storeu_pd(o.dy.add(n), pack(dy));
+            _mm256_storeu_pd(o.dz.add(n), pack(dz));
+            _mm256_storeu_pd(o.r2.add(n), pack(r2));
             n += mask.count_ones() as usize;
         }
         j += 4;
@@ -235,13 +283,7 @@ pub(crate) unsafe fn scan_avx512<const POST: bool>(
     };
     let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
     let (px, py, pz) = (px.as_ptr(), py.as_ptr(), pz.as_ptr());
-    let (oj, ox, oy, oz, or) = (
-        out.j.as_mut_ptr(),
-        out.dx.as_mut_ptr(),
-        out.dy.as_mut_ptr(),
-        out.dz.as_mut_ptr(),
-        out.r2.as_mut_ptr(),
-    );
+    let o = out.ptrs();
     let mut j = a;
     while j < e {
         // SAFETY: j + 7 < e + 7 ≤ the padded lengths asserted above; the stores are at
@@ -259,11 +301,7 @@ pub(crate) unsafe fn scan_avx512<const POST: bool>(
             } else {
                 (_mm512_sub_pd(qx, x), _mm512_sub_pd(qy, y), _mm512_sub_pd(qz, z))
             };
-            // (dx² + dy²) + dz², as the scalar loop and `DVec3::dot` evaluate it
-            let r2 = _mm512_add_pd(
-                _mm512_add_pd(_mm512_mul_pd(dx, dx), _mm512_mul_pd(dy, dy)),
-                _mm512_mul_pd(dz, dz),
-            );
+            let r2 = r2_512(dx, dy, dz);
             let rc2 = match cutoff {
                 Cutoff::One(_) => rc2_one,
                 Cutoff::PerType { ptype, table } => {
@@ -285,12 +323,7 @@ pub(crate) unsafe fn scan_avx512<const POST: bool>(
             let mask =
                 _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(tail, r2, rc2) & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(r2, zero);
             let js = _mm256_add_epi32(_mm256_set1_epi32(j as i32), lane);
-            _mm256_storeu_si256(oj.add(n).cast(), _mm256_maskz_compress_epi32(mask, js));
-            _mm512_storeu_pd(ox.add(n), _mm512_maskz_compress_pd(mask, dx));
-            _mm512_storeu_pd(oy.add(n), _mm512_maskz_compress_pd(mask, dy));
-            _mm512_storeu_pd(oz.add(n), _mm512_maskz_compress_pd(mask, dz));
-            _mm512_storeu_pd(or.add(n), _mm512_maskz_compress_pd(mask, r2));
-            n += mask.count_ones() as usize;
+            n = append_512(o, n, mask, js, [dx, dy, dz, r2]);
         }
         j += 8;
     }
@@ -344,13 +377,7 @@ pub(crate) unsafe fn scan_cell_avx512(
     let rc2v = _mm512_set1_pd(rc2);
     let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
     let (px, py, pz) = (px.as_ptr(), py.as_ptr(), pz.as_ptr());
-    let (oj, ox, oy, oz, or) = (
-        out.j.as_mut_ptr(),
-        out.dx.as_mut_ptr(),
-        out.dy.as_mut_ptr(),
-        out.dz.as_mut_ptr(),
-        out.r2.as_mut_ptr(),
-    );
+    let o = out.ptrs();
     let nq = qs.len();
     let (qp, np) = (qs.as_ptr(), ns.as_mut_ptr());
     let mut j = a;
@@ -370,22 +397,13 @@ pub(crate) unsafe fn scan_cell_avx512(
                 let dx = _mm512_sub_pd(_mm512_set1_pd(q[0]), x);
                 let dy = _mm512_sub_pd(_mm512_set1_pd(q[1]), y);
                 let dz = _mm512_sub_pd(_mm512_set1_pd(q[2]), z);
-                let r2 = _mm512_add_pd(
-                    _mm512_add_pd(_mm512_mul_pd(dx, dx), _mm512_mul_pd(dy, dy)),
-                    _mm512_mul_pd(dz, dz),
-                );
+                let r2 = r2_512(dx, dy, dz);
                 let mut mask =
                     _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(tail, r2, rc2v) & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(r2, zero);
                 if let Some(i0) = own {
                     mask &= _mm256_cmpgt_epi32_mask(js, _mm256_set1_epi32((i0 + k) as i32));
                 }
-                let n = *np.add(k);
-                _mm256_storeu_si256(oj.add(n).cast(), _mm256_maskz_compress_epi32(mask, js));
-                _mm512_storeu_pd(ox.add(n), _mm512_maskz_compress_pd(mask, dx));
-                _mm512_storeu_pd(oy.add(n), _mm512_maskz_compress_pd(mask, dy));
-                _mm512_storeu_pd(oz.add(n), _mm512_maskz_compress_pd(mask, dz));
-                _mm512_storeu_pd(or.add(n), _mm512_maskz_compress_pd(mask, r2));
-                *np.add(k) = n + mask.count_ones() as usize;
+                *np.add(k) = append_512(o, *np.add(k), mask, js, [dx, dy, dz, r2]);
             }
         }
         j += 8;
