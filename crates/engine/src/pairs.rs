@@ -205,9 +205,10 @@ struct Run {
 enum Isa {
     /// Plain Rust, any CPU.
     Portable,
-    /// x86-64 with AVX2: the distance test 4 candidates at a time.
+    /// x86-64 with AVX2 and `popcnt`: the distance test 4 candidates at a time.
     Avx2,
-    /// x86-64 with AVX-512 F and VL: 8 at a time.
+    /// x86-64 with AVX-512 F, VL and DQ and `popcnt`: 8 at a time; with one particle type a
+    /// whole cell per chunk of candidates, and the linear kernel 8 pairs at a time.
     Avx512,
 }
 
@@ -515,7 +516,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     }
                     let rc2 = table.cutoff2_row(0)[0];
                     let pos = [&cl.px[..], &cl.py, &cl.pz];
-                    // SAFETY: as in `Hits::scan`: the CPU has AVX-512 F + VL and this is
+                    // SAFETY: as in `Hits::scan`: the CPU has AVX-512 F + VL (+ DQ) and this is
                     // compiled into the `slab_avx512` build.
                     #[allow(unsafe_code)]
                     unsafe {
@@ -585,8 +586,8 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
         if fbuf.len() < hi - lo + LANES {
             fbuf.resize(hi - lo + LANES, [0.0; 3]);
         }
-        // SAFETY: only called from the `slab_avx512` build (AVX-512 F + VL, checked at run
-        // time), which also enables DQ (`Isa::best` requires it).
+        // SAFETY: only called from the `slab_avx512` build, which enables AVX-512 F, VL and DQ,
+        // all three checked at run time (`Isa::best`).
         #[allow(unsafe_code)]
         unsafe {
             simd::linear_forces_avx512(&hits.h, (lo, hi), &cl.vel, &cl.id, cl.vel[i], cl.id[i], key, lp, fbuf);
