@@ -20,7 +20,7 @@ use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
 use crate::cells::CellList;
-use crate::kernel::{KernelTable, LinearParams, PairKernel};
+use crate::kernel::{KernelTable, PairKernel};
 use crate::rng::pair_xi;
 use crate::simd;
 use crate::{ForceScheme, Real};
@@ -452,13 +452,17 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     let mut vir = DMat3::ZERO;
     let mut nb = [(0usize, 0usize, DVec3::ZERO); 13];
     let mut hits = Hits::default();
+    // The state of the cell-at-a-time path (AVX-512, one type): query points, hit counts, the
+    // previous cell's hits and the cell whose forces are pending, the forces' buffer, and what
+    // those forces need (the kernel row, the noise key, the linear kernel's parameters).
+    #[cfg(target_arch = "x86_64")]
     let (mut qs, mut ns): (Vec<[Real; 3]>, Vec<usize>) = (Vec::new(), Vec::new());
+    #[cfg(target_arch = "x86_64")]
     let (mut prev, mut prev_ns, mut pending) = (Hits::default(), Vec::new(), None);
+    #[cfg(target_arch = "x86_64")]
     let mut fbuf: Vec<[Real; 3]> = Vec::new();
-    let linear = if ONE { table.row(0)[0].linear() } else { None };
-    // What the forces of a cell at a time need: the kernel row, the noise key, the linear
-    // kernel's parameters (one type only).
-    let kern = (table.row(0), run.key, linear);
+    #[cfg(target_arch = "x86_64")]
+    let kern = (table.row(0), run.key, if ONE { table.row(0)[0].linear() } else { None });
     for z in z0..z1 {
         for y in 0..ny {
             for x in 0..nx {
@@ -555,6 +559,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
             }
         }
     }
+    #[cfg(target_arch = "x86_64")]
     if let Some(p) = pending {
         cell_forces::<K, V, ONE>(cl, kern, (&prev, &prev_ns), p, &mut fbuf, win, &mut vir);
     }
@@ -570,7 +575,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
 #[allow(clippy::too_many_arguments)]
 fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
-    (row, key, linear): (&[K], u64, Option<LinearParams>),
+    (row, key, linear): (&[K], u64, Option<crate::kernel::LinearParams>),
     (hits, ns): (&Hits, &[usize]),
     (s0, s1, stride): (usize, usize, usize),
     fbuf: &mut Vec<[Real; 3]>,

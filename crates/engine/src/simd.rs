@@ -69,6 +69,7 @@ impl HitArrays {
 }
 
 /// Raw pointers to the arrays of [`HitArrays`], for the unchecked stores of a scan.
+#[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy)]
 pub(crate) struct HitPtrs {
     j: *mut u32,
@@ -78,6 +79,7 @@ pub(crate) struct HitPtrs {
     r2: *mut Real,
 }
 
+#[cfg(target_arch = "x86_64")]
 impl HitArrays {
     fn ptrs(&mut self) -> HitPtrs {
         HitPtrs {
