@@ -332,27 +332,33 @@ pub(crate) unsafe fn scan_avx512<const POST: bool>(
     n
 }
 
+/// Bits of a tagged hit index ([`scan_cell_avx512`]) that hold the sorted index; the bits above
+/// hold the number of the candidate range it came from.
+pub(crate) const TAG_SHIFT: u32 = 28;
+
 /// The distance test of a whole cell's particles against the sorted candidates `a..e`, 8 at a
 /// time (AVX-512 F + VL): each chunk of candidates is loaded once and tested against every
-/// query point `qs[k]`, whose hits are appended at `ns[k]` (and `ns[k]` advanced). For every k
-/// the hits, their order and their values are those of [`scan_avx512`] with `p = qs[k]`
-/// (`POST = false`) and one cutoff² `rc2`. With `own = Some(i0)` query k is the sorted particle
-/// i0 + k and only candidates j > i0 + k count (the cell's own later particles).
+/// query point `qs[k]`. Query k's hits are appended to `out.j` at `ns[k]` (and `ns[k]`
+/// advanced) as tagged indices `j | tag << TAG_SHIFT`, nothing else: [`separations_avx512`]
+/// recomputes their separations later. For every k the hits and their order are those of
+/// [`scan_avx512`] with `p = qs[k]` (`POST = false`) and one cutoff² `rc2`. With
+/// `own = Some(i0)` query k is the sorted particle i0 + k and only candidates j > i0 + k count
+/// (the cell's own later particles).
 ///
 /// # Safety
-/// As [`scan_avx512`]. Panics unless the positions hold `e + 7` entries and each query's hit
-/// region has room for `(e − a) + 8` more entries in `out`.
+/// As [`scan_avx512`]. Panics unless the positions hold `e + 7` entries, `e < 2^TAG_SHIFT`,
+/// `tag < 16`, and each query's hit region has room for `(e − a) + 8` more entries in `out.j`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn scan_cell_avx512(
     [px, py, pz]: [&[Real]; 3],
     rc2: Real,
-    a: usize,
-    e: usize,
+    (a, e): (usize, usize),
     own: Option<usize>,
+    tag: u32,
     qs: &[[Real; 3]],
-    out: &mut HitArrays,
+    out: &mut [u32],
     ns: &mut [usize],
 ) {
     if a >= e {
@@ -363,25 +369,20 @@ pub(crate) unsafe fn scan_cell_avx512(
         px.len() >= end && py.len() >= end && pz.len() >= end,
         "positions not padded"
     );
+    assert!(e < 1 << TAG_SHIFT && tag < 16, "index or tag too large");
     assert!(ns.len() >= qs.len(), "one hit count per query");
-    let len = out
-        .j
-        .len()
-        .min(out.dx.len())
-        .min(out.dy.len())
-        .min(out.dz.len())
-        .min(out.r2.len());
     assert!(
-        ns[..qs.len()].iter().all(|&n| n + (e - a) + 8 <= len),
+        ns[..qs.len()].iter().all(|&n| n + (e - a) + 8 <= out.len()),
         "hit arrays too short"
     );
     let zero = _mm512_setzero_pd();
     let rc2v = _mm512_set1_pd(rc2);
     let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
     let (px, py, pz) = (px.as_ptr(), py.as_ptr(), pz.as_ptr());
-    let o = out.ptrs();
+    let o = out.as_mut_ptr();
     let nq = qs.len();
     let (qp, np) = (qs.as_ptr(), ns.as_mut_ptr());
+    let tagv = _mm256_set1_epi32((tag << TAG_SHIFT) as i32);
     let mut j = a;
     while j < e {
         // SAFETY: j + 7 < e + 7 ≤ the padded lengths; each query's stores are at
@@ -394,6 +395,7 @@ pub(crate) unsafe fn scan_cell_avx512(
             let valid = e - j;
             let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
             let js = _mm256_add_epi32(_mm256_set1_epi32(j as i32), lane);
+            let tagged = _mm256_or_si256(js, tagv);
             for k in 0..nq {
                 let q = &*qp.add(k);
                 let dx = _mm512_sub_pd(_mm512_set1_pd(q[0]), x);
@@ -405,23 +407,124 @@ pub(crate) unsafe fn scan_cell_avx512(
                 if let Some(i0) = own {
                     mask &= _mm256_cmpgt_epi32_mask(js, _mm256_set1_epi32((i0 + k) as i32));
                 }
-                *np.add(k) = append_512(o, *np.add(k), mask, js, [dx, dy, dz, r2]);
+                let n = *np.add(k);
+                _mm256_storeu_si256(o.add(n).cast(), _mm256_maskz_compress_epi32(mask, tagged));
+                *np.add(k) = n + mask.count_ones() as usize;
             }
         }
         j += 8;
     }
 }
 
-/// The forces of [`crate::kernel::DpdLinear`] for the hits `lo..hi` of `h` (sorted indices and
-/// separations) on a particle with velocity `vi` and id `idi`, 8 pairs at a time (AVX-512 F,
-/// VL and DQ), written to `out[k − lo]`. Each lane runs the operations of
-/// `DpdLinear::force` and `rng::pair_xi` in their order (no fused multiply–add), so every force
-/// equals the scalar one bit for bit.
+/// What [`separations_avx512`] needs to turn tagged hits into separations: the sorted positions,
+/// the query point and the ranges' shifts by tag, in vector registers.
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+pub(crate) struct Geometry {
+    p: [*const Real; 3],
+    n: __m256i,
+    q: [__m512d; 3],
+    sh: [(__m512d, __m512d); 3],
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Geometry {
+    /// # Safety
+    /// As [`scan_avx512`].
+    #[inline(always)]
+    pub(crate) unsafe fn new([px, py, pz]: [&[Real]; 3], q: [Real; 3], sh: &[[Real; 16]; 3]) -> Self {
+        let np = px.len().min(py.len()).min(pz.len());
+        assert!(np < i32::MAX as usize, "too many particles");
+        // SAFETY: each table holds 16 entries.
+        let load16 = |t: &[Real; 16]| unsafe { (_mm512_loadu_pd(t.as_ptr()), _mm512_loadu_pd(t.as_ptr().add(8))) };
+        Self {
+            p: [px.as_ptr(), py.as_ptr(), pz.as_ptr()],
+            n: _mm256_set1_epi32(np as i32),
+            q: [_mm512_set1_pd(q[0]), _mm512_set1_pd(q[1]), _mm512_set1_pd(q[2])],
+            sh: [load16(&sh[0]), load16(&sh[1]), load16(&sh[2])],
+        }
+    }
+
+    /// The plain indices of 8 tagged hits `t` (lanes of `tail`) and their dx, dy, dz, r².
+    ///
+    /// # Safety
+    /// As [`scan_avx512`]; panics if an index of a lane in `tail` is out of range.
+    #[inline(always)]
+    pub(crate) unsafe fn hits(&self, t: __m256i, tail: u8) -> (__m256i, [__m512d; 4]) {
+        let j = _mm256_and_si256(t, _mm256_set1_epi32(((1u32 << TAG_SHIFT) - 1) as i32));
+        assert!(
+            _mm256_mask_cmpge_epu32_mask(tail, j, self.n) == 0,
+            "hit index out of range"
+        );
+        let tag = _mm512_cvtepu32_epi64(_mm256_srli_epi32::<{ TAG_SHIFT as i32 }>(t));
+        let zero = _mm512_setzero_pd();
+        let mut d = [zero; 3];
+        for c in 0..3 {
+            // SAFETY: only lanes in `tail` are read, and their indices were checked above.
+            let x = unsafe { _mm512_mask_i32gather_pd::<8>(zero, tail, j, self.p[c]) };
+            let (lo, hi) = self.sh[c];
+            d[c] = _mm512_sub_pd(_mm512_sub_pd(self.q[c], _mm512_permutex2var_pd(lo, tag, hi)), x);
+        }
+        (j, [d[0], d[1], d[2], r2_512(d[0], d[1], d[2])])
+    }
+}
+
+/// Replaces the tagged indices `h.j[lo..hi]` of [`scan_cell_avx512`] by plain sorted indices and
+/// fills in their separations and r²: `dx = (q − sh[tag]) − x_j` component by component
+/// (`sh[c][tag]` is the shift of the range with that tag), r² as [`r2_512`] — the operations,
+/// and so the values, of [`scan_avx512`] with `p = q − sh`.
+///
+/// # Safety
+/// As [`scan_avx512`]. Panics unless `h`'s arrays hold `hi + 7` entries and every untagged index
+/// is below the positions' length.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn separations_avx512(
+    h: &mut HitArrays,
+    (lo, hi): (usize, usize),
+    [px, py, pz]: [&[Real]; 3],
+    q: [Real; 3],
+    sh: &[[Real; 16]; 3],
+) {
+    if lo >= hi {
+        return;
+    }
+    let len =
+        h.j.len()
+            .min(h.dx.len())
+            .min(h.dy.len())
+            .min(h.dz.len())
+            .min(h.r2.len());
+    assert!(len >= hi + 7, "hit arrays too short");
+    let g = Geometry::new([px, py, pz], q, sh);
+    let o = h.ptrs();
+    let mut k = lo;
+    while k < hi {
+        // SAFETY: k + 7 < hi + 7 ≤ the asserted lengths; `Geometry::hits` checks the indices.
+        unsafe {
+            let valid = hi - k;
+            let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
+            let (j, [dx, dy, dz, r2]) = g.hits(_mm256_loadu_si256(o.j.add(k).cast()), tail);
+            _mm256_storeu_si256(o.j.add(k).cast(), j);
+            _mm512_storeu_pd(o.dx.add(k), dx);
+            _mm512_storeu_pd(o.dy.add(k), dy);
+            _mm512_storeu_pd(o.dz.add(k), dz);
+            _mm512_storeu_pd(o.r2.add(k), r2);
+        }
+        k += 8;
+    }
+}
+
+/// The forces of [`crate::kernel::DpdLinear`] for the tagged hits `h.j[lo..hi]` of
+/// [`scan_cell_avx512`] on a particle with velocity `vi` and id `idi`, 8 pairs at a time (AVX-512
+/// F, VL and DQ), written to `out[c][k − lo]` (c = x, y, z). The separations come from `g`
+/// ([`Geometry::hits`]). Each lane runs the operations of `DpdLinear::force` and `rng::pair_xi`
+/// in their order (no fused multiply–add), so every force equals the scalar one bit for bit.
 ///
 /// # Safety
 /// Only to be called from a function compiled with AVX-512 F, VL and DQ enabled on a CPU that
-/// has them. Panics unless `h`'s arrays hold `hi + 7` entries, `out` holds `hi − lo + 7`, and
-/// every index `h.j[lo..hi]` is below `vel.len() == id.len()`.
+/// has them. Panics unless `h.j` holds `hi + 7` entries, each of `out` `hi − lo + 7`, and every
+/// untagged index is below `vel.len() == id.len()` and the positions' length.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
@@ -434,19 +537,17 @@ pub(crate) unsafe fn linear_forces_avx512(
     idi: u32,
     key: u64,
     p: crate::kernel::LinearParams,
-    out: &mut [[Real; 3]],
+    g: Geometry,
+    out: [&mut [Real]; 3],
 ) {
     use crate::rng::{GOLDEN, MIX, SQRT3, XI_SCALE};
     if lo >= hi {
         return;
     }
-    let len =
-        h.j.len()
-            .min(h.dx.len())
-            .min(h.dy.len())
-            .min(h.dz.len())
-            .min(h.r2.len());
-    assert!(len >= hi + 7 && out.len() >= hi - lo + 7, "force arrays too short");
+    assert!(
+        h.j.len() >= hi + 7 && out.iter().all(|o| o.len() >= hi - lo + 7),
+        "force arrays too short"
+    );
     assert!(
         vel.len() == id.len() && vel.len() < (i32::MAX / 3) as usize,
         "one id per velocity"
@@ -469,12 +570,8 @@ pub(crate) unsafe fn linear_forces_avx512(
         unsafe {
             let valid = hi - k;
             let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
-            let j = _mm256_loadu_si256(h.j.as_ptr().add(k).cast());
+            let (j, [dx, dy, dz, r2]) = g.hits(_mm256_loadu_si256(h.j.as_ptr().add(k).cast()), tail);
             assert!(_mm256_mask_cmpge_epu32_mask(tail, j, n) == 0, "hit index out of range");
-            let dx = _mm512_loadu_pd(h.dx.as_ptr().add(k));
-            let dy = _mm512_loadu_pd(h.dy.as_ptr().add(k));
-            let dz = _mm512_loadu_pd(h.dz.as_ptr().add(k));
-            let r2 = _mm512_loadu_pd(h.r2.as_ptr().add(k));
             let j3 = _mm256_mullo_epi32(j, _mm256_set1_epi32(3));
             let zero = _mm512_setzero_pd();
             let vjx = _mm512_mask_i32gather_pd::<8>(zero, tail, j3, vp);
@@ -522,15 +619,10 @@ pub(crate) unsafe fn linear_forces_avx512(
             );
             let s = _mm512_mul_pd(_mm512_mul_pd(w, inner), inv_r);
             let (fx, fy, fz) = (_mm512_mul_pd(dx, s), _mm512_mul_pd(dy, s), _mm512_mul_pd(dz, s));
-            // interleave to [x, y, z] per pair
-            let mut t = [[0.0; 8]; 3];
-            _mm512_storeu_pd(t[0].as_mut_ptr(), fx);
-            _mm512_storeu_pd(t[1].as_mut_ptr(), fy);
-            _mm512_storeu_pd(t[2].as_mut_ptr(), fz);
-            let o = out.as_mut_ptr().add(k - lo);
-            for l in 0..8 {
-                *o.add(l) = [t[0][l], t[1][l], t[2][l]];
-            }
+            let o = k - lo;
+            _mm512_storeu_pd(out[0].as_mut_ptr().add(o), fx);
+            _mm512_storeu_pd(out[1].as_mut_ptr().add(o), fy);
+            _mm512_storeu_pd(out[2].as_mut_ptr().add(o), fz);
         }
         k += 8;
     }
