@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use crate::{EngineError, PeriodicBox, Real};
 
 /// Entries past the last particle in the padded sorted arrays (≥ the pair loop's lanes − 1).
-pub const PAD: usize = 8;
+pub const PAD: usize = 16;
 
 /// Smallest chunk of particles a rayon task gets in the O(N) passes.
 pub(crate) const MIN_LEN: usize = 4096;
@@ -136,6 +136,14 @@ pub struct CellList {
     pub py: Vec<Real>,
     /// See [`CellList::px`].
     pub pz: Vec<Real>,
+    /// Sorted positions in single precision (padded like [`CellList::px`]), for the
+    /// vectorised prefilter of the distance test, whose hits are then tested again in double
+    /// precision.
+    pub(crate) px32: Vec<f32>,
+    /// See [`CellList::px32`].
+    pub(crate) py32: Vec<f32>,
+    /// See [`CellList::px32`].
+    pub(crate) pz32: Vec<f32>,
     /// Sorted types (padded like [`CellList::px`], with type 0).
     pub ptype: Vec<u16>,
     /// Sorted ids.
@@ -155,6 +163,9 @@ impl CellList {
             px: Vec::new(),
             py: Vec::new(),
             pz: Vec::new(),
+            px32: Vec::new(),
+            py32: Vec::new(),
+            pz32: Vec::new(),
             vel: Vec::new(),
             ptype: Vec::new(),
             id: Vec::new(),
@@ -202,6 +213,10 @@ impl CellList {
             a.resize(n + PAD, 0.0);
             a[n..].fill(0.0);
         }
+        for a in [&mut self.px32, &mut self.py32, &mut self.pz32] {
+            a.resize(n + PAD, 0.0);
+            a[n..].fill(0.0);
+        }
         self.ptype.resize(n + PAD, 0);
         self.ptype[n..].fill(0);
         let perm = &self.perm;
@@ -210,16 +225,20 @@ impl CellList {
             .zip(self.px[..n].par_iter_mut())
             .zip(self.py[..n].par_iter_mut())
             .zip(self.pz[..n].par_iter_mut())
+            .zip(self.px32[..n].par_iter_mut())
+            .zip(self.py32[..n].par_iter_mut())
+            .zip(self.pz32[..n].par_iter_mut())
             .zip(self.vel.par_iter_mut())
             .zip(self.ptype[..n].par_iter_mut())
             .zip(self.id.par_iter_mut())
             .zip(perm.par_iter())
             .with_min_len(MIN_LEN)
-            .for_each(|(((((((x, px), py), pz), v), t), d), &i)| {
+            .for_each(|((((((((((x, px), py), pz), fx), fy), fz), v), t), d), &i)| {
                 let i = i as usize;
                 let p = pos[i];
                 *x = p;
                 (*px, *py, *pz) = (p.x, p.y, p.z);
+                (*fx, *fy, *fz) = (p.x as f32, p.y as f32, p.z as f32);
                 *v = vel_of(i);
                 *t = ptype[i];
                 *d = id[i];

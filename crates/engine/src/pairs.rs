@@ -194,6 +194,20 @@ fn push_range(nb: &mut [(usize, usize, DVec3)], len: &mut usize, a: usize, e: us
     *len += 1;
 }
 
+/// The single-precision cutoff² of the distance prefilter for the double-precision cutoff² `rc2`
+/// in a box whose longest edge is `l`: above rc² by more than the rounding error of r² in single
+/// precision for any pair inside the cutoff, so that the prefilter keeps every hit (positions and
+/// shifted query points are below 2l in magnitude; each coordinate difference is then off by at
+/// most d = ulp(2l) + ulp(rc), and r² by at most 2√3·rc·d + 3d² + a few ulp(rc²)).
+#[cfg(target_arch = "x86_64")]
+fn prefilter_cutoff2(rc2: Real, l: Real) -> f32 {
+    let ulp = |x: f32| (x.next_up() - x) as Real;
+    let rc = rc2.sqrt();
+    let d = ulp((2.0 * l) as f32) + ulp(rc as f32);
+    let margin = 4.0 * rc * d + 3.0 * d * d + 8.0 * ulp(rc2 as f32);
+    ((rc2 + margin) as f32).next_up()
+}
+
 /// What every pair task needs besides the particles and kernels.
 #[derive(Clone, Copy, Debug)]
 struct Run {
@@ -459,7 +473,13 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     // previous cell's hits and the cell whose forces are pending, the forces' buffer, and what
     // those forces need (the kernel row, the noise key, the linear kernel's parameters).
     #[cfg(target_arch = "x86_64")]
-    let (mut qs, mut ns): (Vec<[Real; 3]>, Vec<usize>) = (Vec::new(), Vec::new());
+    let (mut qs, mut ns): (Vec<[f32; 3]>, Vec<usize>) = (Vec::new(), Vec::new());
+    // The cutoff² of the cell path: in double precision, and its single-precision prefilter.
+    #[cfg(target_arch = "x86_64")]
+    let (rc2, rc2_32) = {
+        let rc2 = table.cutoff2_row(0)[0];
+        (rc2, prefilter_cutoff2(rc2, g.lengths().max_element()))
+    };
     #[cfg(target_arch = "x86_64")]
     let (mut prev, mut prev_ns, mut pending) = (Hits::default(), Vec::new(), None);
     #[cfg(target_arch = "x86_64")]
@@ -467,7 +487,12 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     #[cfg(target_arch = "x86_64")]
     let (mut sh, mut prev_sh) = ([[0.0; 16]; 3], [[0.0; 16]; 3]);
     #[cfg(target_arch = "x86_64")]
-    let kern = (table.row(0), run.key, if ONE { table.row(0)[0].linear() } else { None });
+    let kern = (
+        table.row(0),
+        run.key,
+        if ONE { table.row(0)[0].linear() } else { None },
+        rc2,
+    );
     for z in z0..z1 {
         for y in 0..ny {
             for x in 0..nx {
@@ -515,16 +540,16 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     // of the cell's particles; particle k's hits go to its own region of `hits`
                     // (k · stride onwards), in the same order as the per-particle scan below.
                     let nc = s1 - s0;
-                    let stride = m + LANES;
+                    let stride = m + 2 * LANES;
                     hits.reserve(nc * stride);
                     qs.clear();
                     ns.clear();
                     for k in 0..nc {
-                        qs.push(cl.pos[s0 + k].to_array());
+                        let p = cl.pos[s0 + k];
+                        qs.push([p.x as f32, p.y as f32, p.z as f32]);
                         ns.push(k * stride);
                     }
-                    let rc2 = table.cutoff2_row(0)[0];
-                    let pos = [&cl.px[..], &cl.py, &cl.pz];
+                    let pos = [&cl.px32[..], &cl.py32, &cl.pz32];
                     // The ranges' shifts by tag (0: the own range, unshifted).
                     for c in 0..3 {
                         sh[c].fill(0.0);
@@ -538,12 +563,22 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     // compiled into the `slab_avx512` build.
                     #[allow(unsafe_code)]
                     unsafe {
-                        simd::scan_cell_avx512(pos, rc2, (s0, own_end), Some(s0), 0, &qs, &mut hits.h.j, &mut ns);
+                        simd::scan_cell_avx512(pos, rc2_32, (s0, own_end), Some(s0), 0, &qs, &mut hits.h.j, &mut ns);
                         for (t, &(a, e, s)) in nb[skip..nnb].iter().enumerate() {
                             for (k, q) in qs.iter_mut().enumerate() {
-                                *q = (cl.pos[s0 + k] - s).to_array();
+                                let p = cl.pos[s0 + k] - s;
+                                *q = [p.x as f32, p.y as f32, p.z as f32];
                             }
-                            simd::scan_cell_avx512(pos, rc2, (a, e), None, t as u32 + 1, &qs, &mut hits.h.j, &mut ns);
+                            simd::scan_cell_avx512(
+                                pos,
+                                rc2_32,
+                                (a, e),
+                                None,
+                                t as u32 + 1,
+                                &qs,
+                                &mut hits.h.j,
+                                &mut ns,
+                            );
                         }
                     }
                     // The forces of the previous cell now, this cell's after the next scan:
@@ -598,7 +633,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
 #[allow(clippy::too_many_arguments)]
 fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
-    (row, key, linear): (&[K], u64, Option<crate::kernel::LinearParams>),
+    (row, key, linear, rc2): (&[K], u64, Option<crate::kernel::LinearParams>, Real),
     (hits, ns, sh): (&mut Hits, &[usize], &[[Real; 16]; 3]),
     (s0, s1, stride): (usize, usize, usize),
     fbuf: &mut [Vec<Real>; 3],
@@ -606,16 +641,15 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     vir: &mut DMat3,
 ) {
     for (k, i) in (s0..s1).enumerate() {
-        let (lo, hi) = (k * stride, ns[k]);
+        let (lo, mut hi) = (k * stride, ns[k]);
         let (pos, q) = ([&cl.px[..], &cl.py, &cl.pz], cl.pos[i].to_array());
         let linear = linear.filter(|_| !V);
         if linear.is_none() {
             // SAFETY: only called from the `slab_avx512` build (AVX-512 F, VL, DQ checked at
             // run time by `Isa::best`).
             #[allow(unsafe_code)]
-            unsafe {
-                simd::separations_avx512(&mut hits.h, (lo, hi), pos, q, sh);
-            }
+            let end = unsafe { simd::separations_avx512(&mut hits.h, (lo, hi), pos, q, sh, rc2) };
+            hi = end;
         }
         let Some(lp) = linear else {
             hit_forces::<K, V, ONE>(cl, row, key, i, hits, lo..hi, win, vir);
@@ -630,7 +664,7 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
         // all three checked at run time (`Isa::best`).
         #[allow(unsafe_code)]
         unsafe {
-            let g = simd::Geometry::new(pos, q, sh);
+            let g = simd::Geometry::new(pos, q, sh, rc2);
             simd::linear_forces_avx512(
                 &hits.h,
                 (lo, hi),
@@ -1054,5 +1088,71 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// The single-precision prefilter of the AVX-512 cell path lets through candidates just
+    /// beyond the cutoff; the force stage drops them. 300 random particles, each with a partner
+    /// at r = rc (1 ± 1e-9) in a random direction (so many pairs lie within the prefilter's
+    /// rounding of the cutoff, on both sides): the forces equal the portable loop's bit for bit,
+    /// with and without the virial, and at least 100 pairs beyond the cutoff were prefilter
+    /// candidates.
+    #[test]
+    fn prefilter_candidates_beyond_the_cutoff_are_dropped() {
+        let l = DVec3::new(7.0, 6.0, 5.0);
+        let domain = PeriodicBox::new(l).unwrap();
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(11);
+        let mut u = || (rng.next_u64() >> 11) as Real / (1u64 << 53) as Real;
+        let mut pos = Vec::new();
+        for k in 0..300 {
+            let p = DVec3::new(u() * l.x, u() * l.y, u() * l.z);
+            let dir = DVec3::new(u() - 0.5, u() - 0.5, u() - 0.5).normalize();
+            let r = 1.0 + if k % 2 == 0 { 1e-9 } else { -1e-9 };
+            pos.push(p);
+            pos.push(domain.wrap(p + dir * r));
+        }
+        let n = pos.len();
+        let vel: Vec<DVec3> = (0..n).map(|_| DVec3::new(u(), u(), u()) - 0.5).collect();
+        let id: Vec<u32> = (0..n as u32).collect();
+        let mut cl = CellList::new(CellGrid::new(&domain, 1.0).unwrap());
+        cl.build(&pos, &vec![0; n], &id, |i| vel[i]);
+        let p = PairParams::groot_warren();
+        let one = KernelTable::from_fn(1, |_, _| DpdLinear::new(&p, 0.01, true));
+
+        let portable = Run {
+            key: 3,
+            isa: Isa::Portable,
+        };
+        let a = all_schemes(&cl, &one, portable);
+        if Isa::best() == Isa::Avx512 {
+            let b = all_schemes(
+                &cl,
+                &one,
+                Run {
+                    isa: Isa::Avx512,
+                    ..portable
+                },
+            );
+            assert!(a == b, "AVX-512 and portable pair loops differ");
+        } else {
+            eprintln!("this CPU has no AVX-512: the prefilter was not exercised");
+        }
+
+        // In single precision, pairs beyond the cutoff that pass the prefilter, and hits it
+        // would miss.
+        let rc2_32 = prefilter_cutoff2(1.0, l.max_element());
+        let (mut beyond, mut missed) = (0, 0);
+        for i in 0..n {
+            for j in 0..i {
+                let mut d = cl.pos[i] - cl.pos[j];
+                d -= l * (d / l).round();
+                let d32 = [d.x as f32, d.y as f32, d.z as f32];
+                let r2_32 = d32[0] * d32[0] + d32[1] * d32[1] + d32[2] * d32[2];
+                let r2 = d.length_squared();
+                beyond += (r2 >= 1.0 && r2_32 < rc2_32) as usize;
+                missed += (r2 < 1.0 && r2_32 >= rc2_32) as usize;
+            }
+        }
+        assert_eq!(missed, 0, "hits the prefilter would miss");
+        assert!(beyond >= 100, "{beyond} prefilter candidates beyond the cutoff");
     }
 }

@@ -336,83 +336,85 @@ pub(crate) unsafe fn scan_avx512<const POST: bool>(
 /// hold the number of the candidate range it came from.
 pub(crate) const TAG_SHIFT: u32 = 28;
 
-/// The distance test of a whole cell's particles against the sorted candidates `a..e`, 8 at a
-/// time (AVX-512 F + VL): each chunk of candidates is loaded once and tested against every
-/// query point `qs[k]`. Query k's hits are appended to `out.j` at `ns[k]` (and `ns[k]`
-/// advanced) as tagged indices `j | tag << TAG_SHIFT`, nothing else: [`separations_avx512`]
-/// recomputes their separations later. For every k the hits and their order are those of
-/// [`scan_avx512`] with `p = qs[k]` (`POST = false`) and one cutoff² `rc2`. With
-/// `own = Some(i0)` query k is the sorted particle i0 + k and only candidates j > i0 + k count
-/// (the cell's own later particles).
+/// The distance prefilter of a whole cell's particles against the sorted candidates `a..e`, 16
+/// at a time in single precision (AVX-512 F): each chunk of candidates is loaded once and tested
+/// against every query point `qs[k]`. Query k's candidates with r² < `rc2` (in single precision)
+/// are appended to `out` at `ns[k]` (and `ns[k]` advanced) as tagged indices
+/// `j | tag << TAG_SHIFT`, in order. `rc2` must exceed the double-precision cutoff² by more than
+/// the rounding error of single precision, so that every hit of the double-precision test is
+/// among them; the force stage tests them again in double precision ([`Geometry::hits`]) and
+/// drops the rest. With `own = Some(i0)` query k is the sorted particle i0 + k and only
+/// candidates j > i0 + k count (the cell's own later particles).
 ///
 /// # Safety
-/// As [`scan_avx512`]. Panics unless the positions hold `e + 7` entries, `e < 2^TAG_SHIFT`,
-/// `tag < 16`, and each query's hit region has room for `(e − a) + 8` more entries in `out.j`.
+/// As [`scan_avx512`]. Panics unless the positions hold `e + 15` entries, `e + 16 < 2^TAG_SHIFT`,
+/// `tag < 16`, and each query's hit region has room for `(e − a) + 16` more entries in `out`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn scan_cell_avx512(
-    [px, py, pz]: [&[Real]; 3],
-    rc2: Real,
+    [px, py, pz]: [&[f32]; 3],
+    rc2: f32,
     (a, e): (usize, usize),
     own: Option<usize>,
     tag: u32,
-    qs: &[[Real; 3]],
+    qs: &[[f32; 3]],
     out: &mut [u32],
     ns: &mut [usize],
 ) {
     if a >= e {
         return;
     }
-    let end = e + 7;
+    let end = e + 15;
     assert!(
         px.len() >= end && py.len() >= end && pz.len() >= end,
         "positions not padded"
     );
-    assert!(e < 1 << TAG_SHIFT && tag < 16, "index or tag too large");
+    assert!(e + 16 < 1 << TAG_SHIFT && tag < 16, "index or tag too large");
     assert!(ns.len() >= qs.len(), "one hit count per query");
     assert!(
-        ns[..qs.len()].iter().all(|&n| n + (e - a) + 8 <= out.len()),
+        ns[..qs.len()].iter().all(|&n| n + (e - a) + 16 <= out.len()),
         "hit arrays too short"
     );
-    let zero = _mm512_setzero_pd();
-    let rc2v = _mm512_set1_pd(rc2);
-    let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let rc2v = _mm512_set1_ps(rc2);
+    let lane = _mm512_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
     let (px, py, pz) = (px.as_ptr(), py.as_ptr(), pz.as_ptr());
     let o = out.as_mut_ptr();
     let nq = qs.len();
     let (qp, np) = (qs.as_ptr(), ns.as_mut_ptr());
-    let tagv = _mm256_set1_epi32((tag << TAG_SHIFT) as i32);
+    let tagv = _mm512_set1_epi32((tag << TAG_SHIFT) as i32);
     let mut j = a;
     while j < e {
-        // SAFETY: j + 7 < e + 7 ≤ the padded lengths; each query's stores are at
-        // ns[k] .. ns[k] + 8, which stays within the room asserted above (ns[k] grows by at most
-        // e − a over the scan); k < nq ≤ ns.len().
+        // SAFETY: j + 15 < e + 15 ≤ the padded lengths; each query's stores are at
+        // ns[k] .. ns[k] + 16, which stays within the room asserted above (ns[k] grows by at
+        // most e − a over the scan); k < nq ≤ ns.len().
         unsafe {
-            let x = _mm512_loadu_pd(px.add(j));
-            let y = _mm512_loadu_pd(py.add(j));
-            let z = _mm512_loadu_pd(pz.add(j));
+            let x = _mm512_loadu_ps(px.add(j));
+            let y = _mm512_loadu_ps(py.add(j));
+            let z = _mm512_loadu_ps(pz.add(j));
             let valid = e - j;
-            let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
-            let js = _mm256_add_epi32(_mm256_set1_epi32(j as i32), lane);
-            let tagged = _mm256_or_si256(js, tagv);
+            let tail: u16 = if valid < 16 { (1u16 << valid) - 1 } else { 0xFFFF };
+            let js = _mm512_add_epi32(_mm512_set1_epi32(j as i32), lane);
+            let tagged = _mm512_or_si512(js, tagv);
             for k in 0..nq {
                 let q = &*qp.add(k);
-                let dx = _mm512_sub_pd(_mm512_set1_pd(q[0]), x);
-                let dy = _mm512_sub_pd(_mm512_set1_pd(q[1]), y);
-                let dz = _mm512_sub_pd(_mm512_set1_pd(q[2]), z);
-                let r2 = r2_512(dx, dy, dz);
-                let mut mask =
-                    _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(tail, r2, rc2v) & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(r2, zero);
+                let dx = _mm512_sub_ps(_mm512_set1_ps(q[0]), x);
+                let dy = _mm512_sub_ps(_mm512_set1_ps(q[1]), y);
+                let dz = _mm512_sub_ps(_mm512_set1_ps(q[2]), z);
+                let r2 = _mm512_add_ps(
+                    _mm512_add_ps(_mm512_mul_ps(dx, dx), _mm512_mul_ps(dy, dy)),
+                    _mm512_mul_ps(dz, dz),
+                );
+                let mut mask = _mm512_mask_cmp_ps_mask::<_CMP_LT_OQ>(tail, r2, rc2v);
                 if let Some(i0) = own {
-                    mask &= _mm256_cmpgt_epi32_mask(js, _mm256_set1_epi32((i0 + k) as i32));
+                    mask &= _mm512_cmpgt_epi32_mask(js, _mm512_set1_epi32((i0 + k) as i32));
                 }
                 let n = *np.add(k);
-                _mm256_storeu_si256(o.add(n).cast(), _mm256_maskz_compress_epi32(mask, tagged));
+                _mm512_storeu_si512(o.add(n).cast(), _mm512_maskz_compress_epi32(mask, tagged));
                 *np.add(k) = n + mask.count_ones() as usize;
             }
         }
-        j += 8;
+        j += 16;
     }
 }
 
@@ -423,6 +425,7 @@ pub(crate) unsafe fn scan_cell_avx512(
 pub(crate) struct Geometry {
     p: [*const Real; 3],
     n: __m256i,
+    rc2: __m512d,
     q: [__m512d; 3],
     sh: [(__m512d, __m512d); 3],
 }
@@ -432,7 +435,7 @@ impl Geometry {
     /// # Safety
     /// As [`scan_avx512`].
     #[inline(always)]
-    pub(crate) unsafe fn new([px, py, pz]: [&[Real]; 3], q: [Real; 3], sh: &[[Real; 16]; 3]) -> Self {
+    pub(crate) unsafe fn new([px, py, pz]: [&[Real]; 3], q: [Real; 3], sh: &[[Real; 16]; 3], rc2: Real) -> Self {
         let np = px.len().min(py.len()).min(pz.len());
         assert!(np < i32::MAX as usize, "too many particles");
         // SAFETY: each table holds 16 entries.
@@ -440,17 +443,19 @@ impl Geometry {
         Self {
             p: [px.as_ptr(), py.as_ptr(), pz.as_ptr()],
             n: _mm256_set1_epi32(np as i32),
+            rc2: _mm512_set1_pd(rc2),
             q: [_mm512_set1_pd(q[0]), _mm512_set1_pd(q[1]), _mm512_set1_pd(q[2])],
             sh: [load16(&sh[0]), load16(&sh[1]), load16(&sh[2])],
         }
     }
 
-    /// The plain indices of 8 tagged hits `t` (lanes of `tail`) and their dx, dy, dz, r².
+    /// The plain indices of 8 tagged candidates `t` (lanes of `tail`), their dx, dy, dz, r²,
+    /// and the lanes that pass the double-precision test 0 < r² < rc².
     ///
     /// # Safety
     /// As [`scan_avx512`]; panics if an index of a lane in `tail` is out of range.
     #[inline(always)]
-    pub(crate) unsafe fn hits(&self, t: __m256i, tail: u8) -> (__m256i, [__m512d; 4]) {
+    pub(crate) unsafe fn hits(&self, t: __m256i, tail: u8) -> (__m256i, [__m512d; 4], u8) {
         let j = _mm256_and_si256(t, _mm256_set1_epi32(((1u32 << TAG_SHIFT) - 1) as i32));
         assert!(
             _mm256_mask_cmpge_epu32_mask(tail, j, self.n) == 0,
@@ -465,14 +470,18 @@ impl Geometry {
             let (lo, hi) = self.sh[c];
             d[c] = _mm512_sub_pd(_mm512_sub_pd(self.q[c], _mm512_permutex2var_pd(lo, tag, hi)), x);
         }
-        (j, [d[0], d[1], d[2], r2_512(d[0], d[1], d[2])])
+        let r2 = r2_512(d[0], d[1], d[2]);
+        let pass =
+            _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(tail, r2, self.rc2) & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(r2, zero);
+        (j, [d[0], d[1], d[2], r2], pass)
     }
 }
 
-/// Replaces the tagged indices `h.j[lo..hi]` of [`scan_cell_avx512`] by plain sorted indices and
-/// fills in their separations and r²: `dx = (q − sh[tag]) − x_j` component by component
-/// (`sh[c][tag]` is the shift of the range with that tag), r² as [`r2_512`] — the operations,
-/// and so the values, of [`scan_avx512`] with `p = q − sh`.
+/// Replaces the tagged candidates `h.j[lo..hi]` of [`scan_cell_avx512`] by the hits among them
+/// (0 < r² < rc² in double precision), packed from `lo` in order, with plain sorted indices and
+/// their separations and r²: `dx = (q − sh[tag]) − x_j` component by component (`sh[c][tag]`
+/// is the shift of the range with that tag), r² as [`r2_512`] — the operations, and so the
+/// values, of [`scan_avx512`] with `p = q − sh`. Returns the end of the hits.
 ///
 /// # Safety
 /// As [`scan_avx512`]. Panics unless `h`'s arrays hold `hi + 7` entries and every untagged index
@@ -485,9 +494,10 @@ pub(crate) unsafe fn separations_avx512(
     [px, py, pz]: [&[Real]; 3],
     q: [Real; 3],
     sh: &[[Real; 16]; 3],
-) {
+    rc2: Real,
+) -> usize {
     if lo >= hi {
-        return;
+        return lo;
     }
     let len =
         h.j.len()
@@ -496,23 +506,21 @@ pub(crate) unsafe fn separations_avx512(
             .min(h.dz.len())
             .min(h.r2.len());
     assert!(len >= hi + 7, "hit arrays too short");
-    let g = Geometry::new([px, py, pz], q, sh);
+    let g = Geometry::new([px, py, pz], q, sh, rc2);
     let o = h.ptrs();
-    let mut k = lo;
+    let (mut k, mut n) = (lo, lo);
     while k < hi {
-        // SAFETY: k + 7 < hi + 7 ≤ the asserted lengths; `Geometry::hits` checks the indices.
+        // SAFETY: n ≤ k, k + 7 < hi + 7 ≤ the asserted lengths; the stores at n .. n + 8 only
+        // overwrite candidates already read; `Geometry::hits` checks the indices.
         unsafe {
             let valid = hi - k;
             let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
-            let (j, [dx, dy, dz, r2]) = g.hits(_mm256_loadu_si256(o.j.add(k).cast()), tail);
-            _mm256_storeu_si256(o.j.add(k).cast(), j);
-            _mm512_storeu_pd(o.dx.add(k), dx);
-            _mm512_storeu_pd(o.dy.add(k), dy);
-            _mm512_storeu_pd(o.dz.add(k), dz);
-            _mm512_storeu_pd(o.r2.add(k), r2);
+            let (j, [dx, dy, dz, r2], pass) = g.hits(_mm256_loadu_si256(o.j.add(k).cast()), tail);
+            n = append_512(o, n, pass, j, [dx, dy, dz, r2]);
         }
         k += 8;
     }
+    n
 }
 
 /// The forces of [`crate::kernel::DpdLinear`] for the tagged hits `h.j[lo..hi]` of
@@ -570,7 +578,7 @@ pub(crate) unsafe fn linear_forces_avx512(
         unsafe {
             let valid = hi - k;
             let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
-            let (j, [dx, dy, dz, r2]) = g.hits(_mm256_loadu_si256(h.j.as_ptr().add(k).cast()), tail);
+            let (j, [dx, dy, dz, r2], pass) = g.hits(_mm256_loadu_si256(h.j.as_ptr().add(k).cast()), tail);
             assert!(_mm256_mask_cmpge_epu32_mask(tail, j, n) == 0, "hit index out of range");
             let j3 = _mm256_mullo_epi32(j, _mm256_set1_epi32(3));
             let zero = _mm512_setzero_pd();
@@ -618,7 +626,13 @@ pub(crate) unsafe fn linear_forces_avx512(
                 _mm512_mul_pd(sigma_dt, xi),
             );
             let s = _mm512_mul_pd(_mm512_mul_pd(w, inner), inv_r);
-            let (fx, fy, fz) = (_mm512_mul_pd(dx, s), _mm512_mul_pd(dy, s), _mm512_mul_pd(dz, s));
+            // The prefilter's candidates that are not hits get a force of exactly +0.0, which
+            // changes no sum: i's sum starts at +0.0 and so is never −0.0, and j gets −0.0.
+            let (fx, fy, fz) = (
+                _mm512_maskz_mov_pd(pass, _mm512_mul_pd(dx, s)),
+                _mm512_maskz_mov_pd(pass, _mm512_mul_pd(dy, s)),
+                _mm512_maskz_mov_pd(pass, _mm512_mul_pd(dz, s)),
+            );
             let o = k - lo;
             _mm512_storeu_pd(out[0].as_mut_ptr().add(o), fx);
             _mm512_storeu_pd(out[1].as_mut_ptr().add(o), fy);
