@@ -468,12 +468,13 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     let rows = [nx, nx * ny - nx, nx * ny, nx * ny + nx];
     let mut vir = DMat3::ZERO;
     let mut nb = [(0usize, 0usize, DVec3::ZERO); 13];
-    let mut hits = Hits::default();
+    let mut scratch = SCRATCH.with(|c| c.take());
+    let mut hits = &mut scratch.hits;
     // The state of the cell-at-a-time path (AVX-512, one type): query points, hit counts, the
     // previous cell's hits and the cell whose forces are pending, the forces' buffer, and what
     // those forces need (the kernel row, the noise key, the linear kernel's parameters).
     #[cfg(target_arch = "x86_64")]
-    let (mut qs, mut ns): (Vec<[f32; 3]>, Vec<usize>) = (Vec::new(), Vec::new());
+    let (qs, mut ns) = (&mut scratch.qs, &mut scratch.ns);
     // The cutoff² of the cell path: in double precision, and its single-precision prefilter.
     #[cfg(target_arch = "x86_64")]
     let (rc2, rc2_32) = {
@@ -481,9 +482,9 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
         (rc2, prefilter_cutoff2(rc2, g.lengths().max_element()))
     };
     #[cfg(target_arch = "x86_64")]
-    let (mut prev, mut prev_ns, mut pending) = (Hits::default(), Vec::new(), None);
+    let (mut prev, mut prev_ns, mut pending) = (&mut scratch.prev, &mut scratch.prev_ns, None);
     #[cfg(target_arch = "x86_64")]
-    let mut fbuf: [Vec<Real>; 3] = Default::default();
+    let fbuf = &mut scratch.fbuf;
     #[cfg(target_arch = "x86_64")]
     let (mut sh, mut prev_sh) = ([[0.0; 16]; 3], [[0.0; 16]; 3]);
     #[cfg(target_arch = "x86_64")]
@@ -563,37 +564,20 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     // compiled into the `slab_avx512` build.
                     #[allow(unsafe_code)]
                     unsafe {
-                        simd::scan_cell_avx512(pos, rc2_32, (s0, own_end), Some(s0), 0, &qs, &mut hits.h.j, &mut ns);
+                        simd::scan_cell_avx512(pos, rc2_32, (s0, own_end), Some(s0), 0, qs, &mut hits.h.j, ns);
                         for (t, &(a, e, s)) in nb[skip..nnb].iter().enumerate() {
                             for (k, q) in qs.iter_mut().enumerate() {
                                 let p = cl.pos[s0 + k] - s;
                                 *q = [p.x as f32, p.y as f32, p.z as f32];
                             }
-                            simd::scan_cell_avx512(
-                                pos,
-                                rc2_32,
-                                (a, e),
-                                None,
-                                t as u32 + 1,
-                                &qs,
-                                &mut hits.h.j,
-                                &mut ns,
-                            );
+                            simd::scan_cell_avx512(pos, rc2_32, (a, e), None, t as u32 + 1, qs, &mut hits.h.j, ns);
                         }
                     }
                     // The forces of the previous cell now, this cell's after the next scan:
                     // its hits are read well after they were stored (a load right after the
                     // compressing stores cannot be forwarded from them and stalls).
                     if let Some(p) = pending {
-                        cell_forces::<K, V, ONE>(
-                            cl,
-                            kern,
-                            (&mut prev, &prev_ns, &prev_sh),
-                            p,
-                            &mut fbuf,
-                            win,
-                            &mut vir,
-                        );
+                        cell_forces::<K, V, ONE>(cl, kern, (prev, prev_ns, &prev_sh), p, fbuf, win, &mut vir);
                     }
                     std::mem::swap(&mut hits, &mut prev);
                     std::mem::swap(&mut ns, &mut prev_ns);
@@ -612,16 +596,40 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     for &(a, e, sh) in &nb[skip..nnb] {
                         hits.scan::<ONE, false>(rc2_row, cl, run.isa, a, e, pi - sh, DVec3::ZERO);
                     }
-                    hit_forces::<K, V, ONE>(cl, row, run.key, i, &hits, 0..hits.n, win, &mut vir);
+                    hit_forces::<K, V, ONE>(cl, row, run.key, i, hits, 0..hits.n, win, &mut vir);
                 }
             }
         }
     }
     #[cfg(target_arch = "x86_64")]
     if let Some(p) = pending {
-        cell_forces::<K, V, ONE>(cl, kern, (&mut prev, &prev_ns, &prev_sh), p, &mut fbuf, win, &mut vir);
+        cell_forces::<K, V, ONE>(cl, kern, (prev, prev_ns, &prev_sh), p, fbuf, win, &mut vir);
     }
+    SCRATCH.with(|c| c.replace(scratch));
     vir
+}
+
+/// The buffers of a slab task ([`slab_body`]): hits, and for the cell-at-a-time path the query
+/// points, hit counts, the previous cell's hits and counts, and the forces. Kept per thread
+/// between tasks, so that a warm task allocates nothing; their contents never carry over (each
+/// task writes before it reads).
+#[derive(Default)]
+struct Scratch {
+    hits: Hits,
+    #[cfg(target_arch = "x86_64")]
+    qs: Vec<[f32; 3]>,
+    #[cfg(target_arch = "x86_64")]
+    ns: Vec<usize>,
+    #[cfg(target_arch = "x86_64")]
+    prev: Hits,
+    #[cfg(target_arch = "x86_64")]
+    prev_ns: Vec<usize>,
+    #[cfg(target_arch = "x86_64")]
+    fbuf: [Vec<Real>; 3],
+}
+
+thread_local! {
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
 }
 
 /// The forces of one cell's particles s0..s1 from their hits (particle k's are `hits`
