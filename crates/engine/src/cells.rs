@@ -136,9 +136,12 @@ pub struct CellList {
     pub py: Vec<Real>,
     /// See [`CellList::px`].
     pub pz: Vec<Real>,
+    /// Whether [`CellList::build`] fills [`CellList::px32`] etc. (true unless the owner knows
+    /// that the pair loop will not read them).
+    pub(crate) single: bool,
     /// Sorted positions in single precision (padded like [`CellList::px`]), for the
     /// vectorised prefilter of the distance test, whose hits are then tested again in double
-    /// precision.
+    /// precision. Filled only when [`CellList::single`] is set.
     pub(crate) px32: Vec<f32>,
     /// See [`CellList::px32`].
     pub(crate) py32: Vec<f32>,
@@ -163,6 +166,7 @@ impl CellList {
             px: Vec::new(),
             py: Vec::new(),
             pz: Vec::new(),
+            single: true,
             px32: Vec::new(),
             py32: Vec::new(),
             pz32: Vec::new(),
@@ -225,24 +229,36 @@ impl CellList {
             .zip(self.px[..n].par_iter_mut())
             .zip(self.py[..n].par_iter_mut())
             .zip(self.pz[..n].par_iter_mut())
-            .zip(self.px32[..n].par_iter_mut())
-            .zip(self.py32[..n].par_iter_mut())
-            .zip(self.pz32[..n].par_iter_mut())
             .zip(self.vel.par_iter_mut())
             .zip(self.ptype[..n].par_iter_mut())
             .zip(self.id.par_iter_mut())
             .zip(perm.par_iter())
             .with_min_len(MIN_LEN)
-            .for_each(|((((((((((x, px), py), pz), fx), fy), fz), v), t), d), &i)| {
+            .for_each(|(((((((x, px), py), pz), v), t), d), &i)| {
                 let i = i as usize;
                 let p = pos[i];
                 *x = p;
                 (*px, *py, *pz) = (p.x, p.y, p.z);
-                (*fx, *fy, *fz) = (p.x as f32, p.y as f32, p.z as f32);
                 *v = vel_of(i);
                 *t = ptype[i];
                 *d = id[i];
             });
+        if self.single {
+            for (lo, hi) in [
+                (&mut self.px32, &self.px),
+                (&mut self.py32, &self.py),
+                (&mut self.pz32, &self.pz),
+            ] {
+                lo[..n]
+                    .par_chunks_mut(MIN_LEN)
+                    .zip(hi[..n].par_chunks(MIN_LEN))
+                    .for_each(|(lo, hi)| {
+                        for (l, &h) in lo.iter_mut().zip(hi) {
+                            *l = h as f32;
+                        }
+                    });
+            }
+        }
     }
 
     /// Storage index → sorted index (inverse of `perm`).

@@ -208,6 +208,13 @@ fn prefilter_cutoff2(rc2: Real, l: Real) -> f32 {
     ((rc2 + margin) as f32).next_up()
 }
 
+/// Whether the pair loop reads the single-precision positions of a cell list for a force table
+/// with `ntypes` particle types (the AVX-512 cell-at-a-time path: one type); the owner of the
+/// list may skip filling them otherwise ([`CellList::single`]).
+pub(crate) fn reads_single(ntypes: usize) -> bool {
+    ntypes == 1 && Isa::detect() == Isa::Avx512
+}
+
 /// What every pair task needs besides the particles and kernels.
 #[derive(Clone, Copy, Debug)]
 struct Run {
@@ -225,7 +232,8 @@ enum Isa {
     /// x86-64 with AVX2 and `popcnt`: the distance test 4 candidates at a time.
     Avx2,
     /// x86-64 with AVX-512 F, VL and DQ and `popcnt`: 8 at a time; with one particle type a
-    /// whole cell per chunk of candidates, and the linear kernel 8 pairs at a time.
+    /// whole cell per chunk of 16 candidates, prefiltered in single precision and tested again
+    /// in double precision, and the linear kernel 8 pairs at a time.
     Avx512,
 }
 
@@ -311,6 +319,10 @@ pub fn compute<K: PairKernel>(
     sf.clear();
     sf.resize(cl.pos.len(), DVec3::ZERO);
     let one = table.ntypes() == 1;
+    assert!(
+        cl.single || !reads_single(table.ntypes()),
+        "the cell list has no single-precision positions"
+    );
     let le = shear.is_some();
     let run = Run {
         key,

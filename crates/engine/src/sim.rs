@@ -237,6 +237,8 @@ impl<E: Extension> Simulation<E> {
             .at_time(step as Real * config.dt);
         let grid = CellGrid::new(&domain, field.max_cutoff())?;
         let types = field.types();
+        let mut cells = CellList::new(grid);
+        cells.single = pairs::reads_single(types.len());
         Ok(Self {
             table: DpdTable::new(&field, config.dt),
             inv_mass: types.iter().map(|t| 1.0 / t.mass).collect(),
@@ -244,7 +246,7 @@ impl<E: Extension> Simulation<E> {
             frozen: types.iter().map(|t| t.frozen).collect(),
             body: types.iter().map(|t| t.body_force).collect(),
             any_body: types.iter().any(|t| t.body_force != DVec3::ZERO && !t.frozen),
-            cells: CellList::new(grid),
+            cells,
             sforce: Vec::new(),
             config,
             field,
