@@ -199,7 +199,7 @@ fn push_range(nb: &mut [(usize, usize, DVec3)], len: &mut usize, a: usize, e: us
 /// precision for any pair inside the cutoff, so that the prefilter keeps every hit (positions and
 /// shifted query points are below 2l in magnitude; each coordinate difference is then off by at
 /// most d = ulp(2l) + ulp(rc), and r² by at most 2√3·rc·d + 3d² + a few ulp(rc²)).
-#[cfg(target_arch = "x86_64")]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 fn prefilter_cutoff2(rc2: Real, l: Real) -> f32 {
     let ulp = |x: f32| (x.next_up() - x) as Real;
     let rc = rc2.sqrt();
@@ -481,6 +481,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     let mut vir = DMat3::ZERO;
     let mut nb = [(0usize, 0usize, DVec3::ZERO); 13];
     let mut scratch = SCRATCH.with(|c| c.take());
+    #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
     let mut hits = &mut scratch.hits;
     // The state of the cell-at-a-time path (AVX-512, one type): query points, hit counts, the
     // previous cell's hits and the cell whose forces are pending, the forces' buffer, and what

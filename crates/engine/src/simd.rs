@@ -10,6 +10,7 @@ use std::arch::x86_64::*;
 use crate::Real;
 
 /// For each 4-bit lane mask, the indices of its set lanes packed to the front (increasing).
+#[cfg(target_arch = "x86_64")]
 const PACK: [[i32; 4]; 16] = {
     let mut t = [[0i32; 4]; 16];
     let mut m = 0;
@@ -30,6 +31,7 @@ const PACK: [[i32; 4]; 16] = {
 
 /// For each 4-bit lane mask, the 32-bit lane indices that move its set f64 lanes to the front
 /// (`_mm256_permutevar8x32_epi32` on the f64 vector viewed as 8 × 32 bits).
+#[cfg(target_arch = "x86_64")]
 const PACK64: [[i32; 8]; 16] = {
     let mut t = [[0i32; 8]; 16];
     let mut m = 0;
@@ -127,6 +129,7 @@ unsafe fn append_512(o: HitPtrs, n: usize, mask: u8, js: __m256i, v: [__m512d; 4
 /// Panics unless a scan of `a..e` in chunks of `L` lanes can read and write without bounds
 /// checks: the inputs padded to `e + L − 1`, the hit arrays `n + (e − a) + L` long.
 #[inline(always)]
+#[cfg(target_arch = "x86_64")]
 fn check_room<const L: usize>(
     [px, py, pz]: [&[Real]; 3],
     cutoff: Cutoff<'_>,
@@ -150,6 +153,7 @@ fn check_room<const L: usize>(
 
 /// Cutoffs of the distance test: one for every candidate, or one per candidate type.
 #[derive(Clone, Copy)]
+#[cfg(target_arch = "x86_64")]
 pub(crate) enum Cutoff<'a> {
     /// Every pair has this squared cutoff.
     One(Real),
@@ -334,6 +338,7 @@ pub(crate) unsafe fn scan_avx512<const POST: bool>(
 
 /// Bits of a tagged hit index ([`scan_cell_avx512`]) that hold the sorted index; the bits above
 /// hold the number of the candidate range it came from.
+#[cfg(target_arch = "x86_64")]
 pub(crate) const TAG_SHIFT: u32 = 28;
 
 /// The distance prefilter of a whole cell's particles against the sorted candidates `a..e`, 16
