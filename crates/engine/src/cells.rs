@@ -217,10 +217,6 @@ impl CellList {
             a.resize(n + PAD, 0.0);
             a[n..].fill(0.0);
         }
-        for a in [&mut self.px32, &mut self.py32, &mut self.pz32] {
-            a.resize(n + PAD, 0.0);
-            a[n..].fill(0.0);
-        }
         self.ptype.resize(n + PAD, 0);
         self.ptype[n..].fill(0);
         let perm = &self.perm;
@@ -249,6 +245,8 @@ impl CellList {
                 (&mut self.py32, &self.py),
                 (&mut self.pz32, &self.pz),
             ] {
+                lo.resize(n + PAD, 0.0);
+                lo[n..].fill(0.0);
                 lo[..n]
                     .par_chunks_mut(MIN_LEN)
                     .zip(hi[..n].par_chunks(MIN_LEN))

@@ -645,10 +645,13 @@ thread_local! {
     static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
 }
 
-/// The forces of one cell's particles s0..s1 from their hits (particle k's are `hits`
-/// k · stride .. `ns[k]`), particle by particle. With the linear kernel's parameters
-/// (`linear`) each particle's forces are first evaluated 8 pairs at a time into `fbuf`
-/// ([`simd::linear_forces_avx512`], the same operations per pair), then summed in the same order.
+/// The forces of one cell's particles s0..s1 from their candidates (particle k's are the tagged
+/// indices `hits` k · stride .. `ns[k]` of [`simd::scan_cell_avx512`], with the ranges' shifts
+/// `sh`), particle by particle. With the linear kernel's parameters (`linear`) and no virial each
+/// particle's forces are evaluated 8 pairs at a time into `fbuf` ([`simd::linear_forces_avx512`],
+/// the same operations per pair; candidates beyond the cutoff get +0.0), then summed in the same
+/// order. Otherwise the hits and their separations are filled in
+/// ([`simd::separations_avx512`]) and run through [`hit_forces`].
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
@@ -661,10 +664,10 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     win: &mut Win<'_>,
     vir: &mut DMat3,
 ) {
+    let linear = linear.filter(|_| !V);
     for (k, i) in (s0..s1).enumerate() {
         let (lo, mut hi) = (k * stride, ns[k]);
         let (pos, q) = ([&cl.px[..], &cl.py, &cl.pz], cl.pos[i].to_array());
-        let linear = linear.filter(|_| !V);
         if linear.is_none() {
             // SAFETY: only called from the `slab_avx512` build (AVX-512 F, VL, DQ checked at
             // run time by `Isa::best`).

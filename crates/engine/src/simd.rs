@@ -423,8 +423,9 @@ pub(crate) unsafe fn scan_cell_avx512(
     }
 }
 
-/// What [`separations_avx512`] needs to turn tagged hits into separations: the sorted positions,
-/// the query point and the ranges' shifts by tag, in vector registers.
+/// What turns the tagged candidates of [`scan_cell_avx512`] into separations and hits
+/// ([`separations_avx512`], [`linear_forces_avx512`]): the sorted positions, the query point, the
+/// ranges' shifts by tag and the double-precision cutoff², in vector registers.
 #[cfg(target_arch = "x86_64")]
 #[derive(Clone, Copy)]
 pub(crate) struct Geometry {
