@@ -16,6 +16,55 @@ pub const PAD: usize = 16;
 /// Smallest chunk of particles a rayon task gets in the O(N) passes.
 pub(crate) const MIN_LEN: usize = 4096;
 
+/// Most blocks the counting sort splits the particles into. Each block keeps a count per cell,
+/// and there are about N/3 cells at the standard density, so every block adds per-cell work of
+/// the order of the sort's own per-particle work.
+pub const SORT_BLOCKS_MAX: usize = 4;
+
+/// Fewest particles per block of the counting sort.
+const SORT_BLOCK_MIN: usize = 8192;
+
+/// Cells per chunk of the sort's parallel prefix sum.
+const CELL_CHUNK: usize = 4096;
+
+/// Sorted indices per task of the sorted copy.
+const COPY_CHUNK: usize = 2048;
+
+/// Writes into a `u32` slice from several threads at indices that the caller guarantees to be
+/// distinct (the counting sort's insertion points).
+struct Scatter<'a> {
+    ptr: *mut u32,
+    len: usize,
+    _slice: std::marker::PhantomData<&'a mut [u32]>,
+}
+
+// SAFETY: `Scatter` is only a pointer to a slice borrowed mutably for its lifetime; concurrent
+// `write`s are sound because their callers write distinct indices (see `write`).
+#[allow(unsafe_code)]
+unsafe impl Sync for Scatter<'_> {}
+
+impl<'a> Scatter<'a> {
+    fn new(v: &'a mut [u32]) -> Self {
+        Self {
+            ptr: v.as_mut_ptr(),
+            len: v.len(),
+            _slice: std::marker::PhantomData,
+        }
+    }
+
+    /// Writes `v` at `k`; panics if `k` is out of range.
+    ///
+    /// # Safety
+    /// No other thread reads or writes index `k` while the `Scatter` lives.
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn write(&self, k: usize, v: u32) {
+        assert!(k < self.len, "sorted index out of range");
+        // SAFETY: in bounds (checked); exclusive by the caller's guarantee.
+        unsafe { *self.ptr.add(k) = v }
+    }
+}
+
 /// The grid of cells.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CellGrid {
@@ -153,6 +202,14 @@ pub struct CellList {
     pub id: Vec<u32>,
     cell: Vec<u32>,
     inv: Vec<u32>,
+    /// Per block of the sort, its particle count per cell, then its running insertion point.
+    hist: Vec<u32>,
+    /// Per block, its histogram's sum per chunk of [`CELL_CHUNK`] cells.
+    chunk_sum: Vec<u32>,
+    /// Per chunk of cells, the sorted index where it starts.
+    chunk_base: Vec<u32>,
+    /// Per (cell, block), cell-major, where the block's particles of the cell start.
+    off: Vec<u32>,
 }
 
 impl CellList {
@@ -175,41 +232,133 @@ impl CellList {
             id: Vec::new(),
             cell: Vec::new(),
             inv: Vec::new(),
+            hist: Vec::new(),
+            chunk_sum: Vec::new(),
+            chunk_base: Vec::new(),
+            off: Vec::new(),
         }
     }
 
     /// Sorts the particles into cells. `vel_of(i)` gives the velocity the dissipative force
-    /// should see for storage index i. Positions must be inside the box. The per-particle
-    /// passes run in parallel (rayon); the counting sort itself is sequential, so the order is
-    /// the same for any thread count.
+    /// should see for storage index i. Positions must be inside the box.
+    ///
+    /// The sort is a stable counting sort run in parallel: the particles are split into up to
+    /// [`SORT_BLOCKS_MAX`] blocks in storage order, each block counts its particles per cell, an
+    /// exclusive prefix sum over (cell, block) gives every block its own insertion points, and
+    /// each block places its particles. The result is the one order of a stable sort, so it is
+    /// the same for any number of blocks or threads.
     pub fn build(&mut self, pos: &[DVec3], ptype: &[u16], id: &[u32], vel_of: impl Fn(usize) -> DVec3 + Sync) {
         let n = pos.len();
+        assert!(ptype.len() == n && id.len() == n, "one type and id per position");
+        assert!(n < u32::MAX as usize, "too many particles");
         let nc = self.grid.ncells();
         let grid = self.grid;
+        if n == 0 {
+            self.start.clear();
+            self.start.resize(nc + 1, 0);
+            for v in [&mut self.cell, &mut self.inv, &mut self.perm, &mut self.id] {
+                v.clear();
+            }
+            self.pos.clear();
+            self.vel.clear();
+            for a in [&mut self.px, &mut self.py, &mut self.pz] {
+                a.clear();
+                a.resize(PAD, 0.0);
+            }
+            for a in [&mut self.px32, &mut self.py32, &mut self.pz32] {
+                a.clear();
+                a.resize(if self.single { PAD } else { 0 }, 0.0);
+            }
+            self.ptype.clear();
+            self.ptype.resize(PAD, 0);
+            return;
+        }
+        let blocks = (n / SORT_BLOCK_MIN).clamp(1, rayon::current_num_threads().clamp(1, SORT_BLOCKS_MAX));
+        // Block length, and the number of blocks that length really gives (≥ 1).
+        let bl = n.div_ceil(blocks);
+        let blocks = n.div_ceil(bl);
+        let nq = nc.div_ceil(CELL_CHUNK);
         self.cell.resize(n, 0);
-        self.cell
-            .par_iter_mut()
-            .zip(pos.par_iter())
-            .with_min_len(MIN_LEN)
-            .for_each(|(c, p)| *c = grid.cell_of(*p) as u32);
-        self.start.clear();
-        self.start.resize(nc + 1, 0);
-        for &c in &self.cell {
-            self.start[c as usize + 1] += 1;
-        }
-        for c in 0..nc {
-            self.start[c + 1] += self.start[c];
-        }
-        // Stable counting sort; `fill` is the running insertion point of each cell.
-        self.perm.resize(n, 0);
         self.inv.resize(n, 0);
-        let mut fill: Vec<u32> = self.start[..nc].to_vec();
-        for (i, &c) in self.cell.iter().enumerate() {
-            let k = fill[c as usize];
-            self.perm[k as usize] = i as u32;
-            self.inv[i] = k;
-            fill[c as usize] = k + 1;
+        self.perm.resize(n, 0);
+        self.hist.resize(blocks * nc, 0);
+        self.chunk_sum.resize(blocks * nq, 0);
+        // 1. Each block: its particles' cells, its histogram and the histogram's sum per chunk
+        //    of cells.
+        self.cell
+            .par_chunks_mut(bl)
+            .zip(pos.par_chunks(bl))
+            .zip(self.hist.par_chunks_mut(nc))
+            .zip(self.chunk_sum.par_chunks_mut(nq))
+            .for_each(|(((cell, pos), hist), sums)| {
+                hist.fill(0);
+                for (c, p) in cell.iter_mut().zip(pos) {
+                    let k = grid.cell_of(*p);
+                    *c = k as u32;
+                    hist[k] += 1;
+                }
+                for (s, h) in sums.iter_mut().zip(hist.chunks(CELL_CHUNK)) {
+                    *s = h.iter().sum();
+                }
+            });
+        // 2. Where each chunk of cells starts (sequential over the few chunks).
+        self.chunk_base.clear();
+        let mut run = 0u32;
+        for q in 0..nq {
+            self.chunk_base.push(run);
+            run += (0..blocks).map(|b| self.chunk_sum[b * nq + q]).sum::<u32>();
         }
+        // 3. Per cell: where it starts, and where each block's particles of it start.
+        self.start.resize(nc + 1, 0);
+        self.start[nc] = n as u32;
+        self.off.resize(nc * blocks, 0);
+        {
+            let (hist, base) = (&self.hist, &self.chunk_base);
+            self.start[..nc]
+                .par_chunks_mut(CELL_CHUNK)
+                .zip(self.off.par_chunks_mut(CELL_CHUNK * blocks))
+                .enumerate()
+                .for_each(|(q, (start, off))| {
+                    let c0 = q * CELL_CHUNK;
+                    let mut run = base[q];
+                    for (dc, (s, o)) in start.iter_mut().zip(off.chunks_mut(blocks)).enumerate() {
+                        *s = run;
+                        for (b, o) in o.iter_mut().enumerate() {
+                            *o = run;
+                            run += hist[b * nc + c0 + dc];
+                        }
+                    }
+                });
+        }
+        // 4. Each block places its particles, in storage order, at its own insertion points.
+        {
+            let off = &self.off;
+            let perm = Scatter::new(&mut self.perm);
+            self.inv
+                .par_chunks_mut(bl)
+                .zip(self.cell.par_chunks(bl))
+                .zip(self.hist.par_chunks_mut(nc))
+                .enumerate()
+                .for_each(|(b, ((inv, cell), fill))| {
+                    for (c, f) in fill.iter_mut().enumerate() {
+                        *f = off[c * blocks + b];
+                    }
+                    let i0 = b * bl;
+                    for (di, (v, &c)) in inv.iter_mut().zip(cell).enumerate() {
+                        let k = fill[c as usize];
+                        fill[c as usize] = k + 1;
+                        *v = k;
+                        // SAFETY: the insertion points of (cell, block) pairs are disjoint
+                        // intervals that tile 0..n (step 3), and each block advances only its
+                        // own, so every sorted index is written by exactly one block, once.
+                        #[allow(unsafe_code)]
+                        unsafe {
+                            perm.write(k as usize, (i0 + di) as u32)
+                        };
+                    }
+                });
+        }
+        // 5. The sorted copies (a parallel gather), single precision on the way if wanted.
         self.pos.resize(n, DVec3::ZERO);
         self.vel.resize(n, DVec3::ZERO);
         self.id.resize(n, 0);
@@ -219,43 +368,61 @@ impl CellList {
         }
         self.ptype.resize(n + PAD, 0);
         self.ptype[n..].fill(0);
-        let perm = &self.perm;
-        self.pos
-            .par_iter_mut()
-            .zip(self.px[..n].par_iter_mut())
-            .zip(self.py[..n].par_iter_mut())
-            .zip(self.pz[..n].par_iter_mut())
-            .zip(self.vel.par_iter_mut())
-            .zip(self.ptype[..n].par_iter_mut())
-            .zip(self.id.par_iter_mut())
-            .zip(perm.par_iter())
-            .with_min_len(MIN_LEN)
-            .for_each(|(((((((x, px), py), pz), v), t), d), &i)| {
-                let i = i as usize;
-                let p = pos[i];
-                *x = p;
-                (*px, *py, *pz) = (p.x, p.y, p.z);
-                *v = vel_of(i);
-                *t = ptype[i];
-                *d = id[i];
-            });
         if self.single {
-            for (lo, hi) in [
-                (&mut self.px32, &self.px),
-                (&mut self.py32, &self.py),
-                (&mut self.pz32, &self.pz),
-            ] {
-                lo.resize(n + PAD, 0.0);
-                lo[n..].fill(0.0);
-                lo[..n]
-                    .par_chunks_mut(MIN_LEN)
-                    .zip(hi[..n].par_chunks(MIN_LEN))
-                    .for_each(|(lo, hi)| {
-                        for (l, &h) in lo.iter_mut().zip(hi) {
+            for a in [&mut self.px32, &mut self.py32, &mut self.pz32] {
+                a.resize(n + PAD, 0.0);
+                a[n..].fill(0.0);
+            }
+        }
+        let (perm, single) = (&self.perm, self.single);
+        let gather =
+            |k0: usize, x: &mut [DVec3], v: &mut [DVec3], t: &mut [u16], d: &mut [u32], p64: [&mut [Real]; 3]| {
+                let [px, py, pz] = p64;
+                for (dk, (((((x, v), t), d), (px, py)), pz)) in x
+                    .iter_mut()
+                    .zip(v.iter_mut())
+                    .zip(t.iter_mut())
+                    .zip(d.iter_mut())
+                    .zip(px.iter_mut().zip(py.iter_mut()))
+                    .zip(pz.iter_mut())
+                    .enumerate()
+                {
+                    let i = perm[k0 + dk] as usize;
+                    let p = pos[i];
+                    *x = p;
+                    (*px, *py, *pz) = (p.x, p.y, p.z);
+                    *v = vel_of(i);
+                    *t = ptype[i];
+                    *d = id[i];
+                }
+            };
+        let chunks = self
+            .pos
+            .par_chunks_mut(COPY_CHUNK)
+            .zip(self.vel.par_chunks_mut(COPY_CHUNK))
+            .zip(self.ptype[..n].par_chunks_mut(COPY_CHUNK))
+            .zip(self.id.par_chunks_mut(COPY_CHUNK))
+            .zip(self.px[..n].par_chunks_mut(COPY_CHUNK))
+            .zip(self.py[..n].par_chunks_mut(COPY_CHUNK))
+            .zip(self.pz[..n].par_chunks_mut(COPY_CHUNK))
+            .enumerate();
+        if single {
+            chunks
+                .zip(self.px32[..n].par_chunks_mut(COPY_CHUNK))
+                .zip(self.py32[..n].par_chunks_mut(COPY_CHUNK))
+                .zip(self.pz32[..n].par_chunks_mut(COPY_CHUNK))
+                .for_each(|((((q, ((((((x, v), t), d), px), py), pz)), lx), ly), lz)| {
+                    gather(q * COPY_CHUNK, x, v, t, d, [&mut *px, &mut *py, &mut *pz]);
+                    for (l, h) in [(lx, &*px), (ly, &*py), (lz, &*pz)] {
+                        for (l, &h) in l.iter_mut().zip(h) {
                             *l = h as f32;
                         }
-                    });
-            }
+                    }
+                });
+        } else {
+            chunks.for_each(|(q, ((((((x, v), t), d), px), py), pz))| {
+                gather(q * COPY_CHUNK, x, v, t, d, [px, py, pz]);
+            });
         }
     }
 
@@ -332,5 +499,64 @@ mod tests {
         let mut p = cl.perm.clone();
         p.sort();
         assert_eq!(p, id);
+    }
+
+    #[test]
+    fn an_empty_box_has_empty_cells() {
+        let b = PeriodicBox::new(DVec3::splat(3.0)).unwrap();
+        let mut cl = CellList::new(CellGrid::new(&b, 1.0).unwrap());
+        let one = [DVec3::splat(1.5)];
+        cl.build(&one, &[0], &[0], |_| DVec3::ZERO);
+        cl.build(&[], &[], &[], |_| DVec3::ZERO);
+        assert!(cl.start.iter().all(|&s| s == 0) && cl.perm.is_empty() && cl.pos.is_empty());
+    }
+
+    /// The parallel counting sort gives the one stable order for any number of blocks: against a
+    /// sequential stable sort by cell, with 1 to 4 threads (so 1 to 4 blocks) and a thread count
+    /// that does not divide the particles evenly, on storage that is partly in cell order.
+    #[test]
+    fn parallel_sort_equals_the_sequential_stable_sort() {
+        use rand_xoshiro::rand_core::{RngCore, SeedableRng};
+        let b = PeriodicBox::new(DVec3::new(23.0, 17.0, 29.0)).unwrap();
+        let g = CellGrid::new(&b, 1.0).unwrap();
+        let n = 4 * SORT_BLOCK_MIN + 777;
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        let mut u = || (rng.next_u64() >> 11) as Real / (1u64 << 53) as Real;
+        let mut pos: Vec<DVec3> = (0..n).map(|_| DVec3::new(u() * 23.0, u() * 17.0, u() * 29.0)).collect();
+        // The first half in cell order, as after a storage sort; the rest random.
+        pos[..n / 2].sort_by_key(|p| g.cell_of(*p));
+        let ty: Vec<u16> = (0..n).map(|i| (i % 3) as u16).collect();
+        let id: Vec<u32> = (0..n as u32).rev().collect();
+        let vel: Vec<DVec3> = (0..n).map(|i| DVec3::splat(i as Real)).collect();
+        let mut want: Vec<u32> = (0..n as u32).collect();
+        want.sort_by_key(|&i| g.cell_of(pos[i as usize])); // stable
+        for threads in 1..=4 {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let mut cl = CellList::new(g);
+            // Twice, so that the second build reuses (and must reset) the first one's buffers.
+            for _ in 0..2 {
+                pool.install(|| cl.build(&pos, &ty, &id, |i| vel[i]));
+            }
+            assert_eq!(cl.perm, want, "{threads} threads");
+            for (k, &i) in cl.perm.iter().enumerate() {
+                let i = i as usize;
+                assert_eq!(cl.inverse()[i] as usize, k);
+                assert_eq!(
+                    (cl.pos[k], cl.vel[k], cl.ptype[k], cl.id[k]),
+                    (pos[i], vel[i], ty[i], id[i])
+                );
+                assert_eq!((cl.px[k], cl.py[k], cl.pz[k]), (pos[i].x, pos[i].y, pos[i].z));
+                assert_eq!(
+                    (cl.px32[k], cl.py32[k], cl.pz32[k]),
+                    (pos[i].x as f32, pos[i].y as f32, pos[i].z as f32)
+                );
+            }
+            for c in 0..g.ncells() {
+                let (a, e) = cl.range(c);
+                assert!(cl.pos[a..e].iter().all(|p| g.cell_of(*p) == c));
+            }
+            assert_eq!(cl.start[g.ncells()] as usize, n);
+            assert!(cl.ptype[n..].iter().all(|&t| t == 0) && cl.px[n..].iter().all(|&x| x == 0.0));
+        }
     }
 }

@@ -316,7 +316,8 @@ pub fn compute<K: PairKernel>(
     virial: bool,
     shear: Option<ShearImages>,
 ) -> DMat3 {
-    sf.clear();
+    // Not zeroed here: the half shell's first phase zeroes the windows it owns (which tile the
+    // array) in parallel, and the gather scheme assigns every entry.
     sf.resize(cl.pos.len(), DVec3::ZERO);
     let one = table.ntypes() == 1;
     assert!(
@@ -394,7 +395,8 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
     let layers = |s: usize| (s, if s + 1 == nslab { nz } else { s + 1 });
     let mut vir = vec![DMat3::ZERO; nslab];
 
-    // Phase 1: even slabs; slab 2k writes [b(2k), b(2k+2)), contiguous and disjoint.
+    // Phase 1: even slabs; slab 2k writes [b(2k), b(2k+2)), contiguous and disjoint, and
+    // together they tile the array, so each zeroes its window first.
     {
         let mut tasks = Vec::with_capacity(nslab / 2);
         let mut rest: &mut [DVec3] = sf;
@@ -416,7 +418,10 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
         }
         let out: Vec<(usize, DMat3)> = tasks
             .into_par_iter()
-            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, run, layers(s), &mut w, le)))
+            .map(|(s, mut w)| {
+                w.a.fill(DVec3::ZERO);
+                (s, slab::<K, V, ONE>(cl, table, run, layers(s), &mut w, le))
+            })
             .collect();
         for (s, m) in out {
             vir[s] = m;
