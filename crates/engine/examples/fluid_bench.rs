@@ -5,8 +5,7 @@
 //! (defaults STEPS 1000, NEQ 200, SCHEME half; `gather` for the other pair loop). Prints one
 //! line: particle-steps/s of the timed steps, ⟨T⟩ and ⟨p⟩ sampled every 100 steps.
 //! `SORT_EVERY=k` re-sorts the storage every k steps (`SimConfig::sort_every`; default 100 here,
-//! as the fluid scenario does; 0 turns it off). `STEP_STATS=1` also prints, on stderr, the rates
-//! of the fastest tenth and of the median of the timed steps (steps with the virial included).
+//! as the fluid scenario does; 0 turns it off).
 
 use std::time::Instant;
 
@@ -41,10 +40,8 @@ fn main() -> Result<(), EngineError> {
         let mut sim = Simulation::new(config, field, p)?;
         sim.run(neq)?;
         let (mut ts, mut ps) = (Vec::new(), Vec::new());
-        let mut per_step = Vec::with_capacity(steps as usize);
         let t0 = Instant::now();
         for k in 0..steps {
-            let ts0 = Instant::now();
             if k % 100 == 99 {
                 let w = sim.step_with_virial()?;
                 ts.push(observe::temperature(sim.particles(), sim.field()));
@@ -52,16 +49,8 @@ fn main() -> Result<(), EngineError> {
             } else {
                 sim.step()?;
             }
-            per_step.push(ts0.elapsed().as_secs_f64());
         }
         let secs = t0.elapsed().as_secs_f64();
-        if std::env::var_os("STEP_STATS").is_some() {
-            // The rates of the fastest 10 % and of the median step: on a machine shared with
-            // other work, the fast steps are the ones it did not disturb.
-            per_step.sort_by(f64::total_cmp);
-            let at = |q: f64| n as f64 / per_step[((per_step.len() - 1) as f64 * q) as usize];
-            eprintln!("step rates: p10 {:.4e} p50 {:.4e} particle-steps/s", at(0.1), at(0.5));
-        }
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         println!(
             "hemodpd L={l} N={n} threads={threads} scheme={scheme:?} dt=0.01: {:.4e} particle-steps/s, T={:.5}, p={:.4} [loop {secs:.2} s / {steps} steps]",
