@@ -375,10 +375,50 @@ impl Win<'_> {
     }
 }
 
+/// The sorted force array, shared by the slab tasks of [`half_shell`]: their windows overlap in
+/// memory, but a task runs only after every task whose window overlaps its own has finished.
+struct SharedForces<'a> {
+    ptr: *mut DVec3,
+    len: usize,
+    _slice: std::marker::PhantomData<&'a mut [DVec3]>,
+}
+
+// SAFETY: only a pointer to a slice borrowed mutably for its lifetime; the tasks that take
+// windows of it from several threads never hold overlapping windows at the same time (see
+// `window`).
+#[allow(unsafe_code)]
+unsafe impl Sync for SharedForces<'_> {}
+
+impl<'a> SharedForces<'a> {
+    fn new(v: &'a mut [DVec3]) -> Self {
+        Self {
+            ptr: v.as_mut_ptr(),
+            len: v.len(),
+            _slice: std::marker::PhantomData,
+        }
+    }
+
+    /// Entries `lo..hi`; panics unless `lo ≤ hi ≤ len`.
+    ///
+    /// # Safety
+    /// No other window overlapping `lo..hi` may be alive while the returned one is.
+    #[allow(unsafe_code, clippy::mut_from_ref)]
+    unsafe fn window(&self, lo: usize, hi: usize) -> &mut [DVec3] {
+        assert!(lo <= hi && hi <= self.len, "window out of range");
+        // SAFETY: in bounds (checked); exclusive by the caller's guarantee.
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.add(lo), hi - lo) }
+    }
+}
+
 /// Slabs are single z-layers of cells, except that with an odd layer count the last slab holds
-/// the last two layers, so the slab count is even. Phase 1 runs the even slabs in parallel, phase
-/// 2 the odd ones; a slab writes only to itself and the next slab, so no two concurrent tasks
-/// share a particle, and each particle's sum has the same order whatever the thread count.
+/// the last two layers, so the slab count is even. A slab writes only to itself and the next
+/// slab. The even slabs run first, in parallel (their windows tile the array, and each zeroes
+/// its window first); odd slab 2k + 1 runs as soon as its two even neighbours 2k and 2k + 2
+/// (mod the slab count) have finished, the only slabs whose windows overlap its own. So no two
+/// concurrent tasks share a particle, there is no barrier between the even and the odd slabs,
+/// and each particle's sum has the same order whatever the thread count: a particle of an even
+/// layer gets its own slab's forces before the odd slab below, one of an odd layer the even
+/// slab below before its own.
 fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
     cl: &CellList,
     table: &KernelTable<K>,
@@ -392,79 +432,64 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
     let b: Vec<usize> = (0..=nslab)
         .map(|s| if s < nslab { cl.layer_start(s) } else { n })
         .collect();
-    let layers = |s: usize| (s, if s + 1 == nslab { nz } else { s + 1 });
-    let mut vir = vec![DMat3::ZERO; nslab];
-
-    // Phase 1: even slabs; slab 2k writes [b(2k), b(2k+2)), contiguous and disjoint, and
-    // together they tile the array, so each zeroes its window first.
-    {
-        let mut tasks = Vec::with_capacity(nslab / 2);
-        let mut rest: &mut [DVec3] = sf;
-        let mut off = 0;
-        for s in (0..nslab).step_by(2) {
-            let end = b[s + 2];
-            let (w, r) = rest.split_at_mut(end - off);
-            tasks.push((
-                s,
-                Win {
-                    a: w,
-                    a0: off,
-                    b: &mut [],
-                    b0: 0,
-                },
-            ));
-            rest = r;
-            off = end;
-        }
-        let out: Vec<(usize, DMat3)> = tasks
-            .into_par_iter()
-            .map(|(s, mut w)| {
-                w.a.fill(DVec3::ZERO);
-                (s, slab::<K, V, ONE>(cl, table, run, layers(s), &mut w, le))
-            })
-            .collect();
-        for (s, m) in out {
-            vir[s] = m;
-        }
-    }
-    // Phase 2: odd slabs; slab 2k+1 writes [b(2k+1), b(2k+3)); the last one wraps to slab 0.
-    {
-        let (head, mut rest) = sf.split_at_mut(b[1]);
-        let mut head = Some(head);
-        let mut off = b[1];
-        let mut tasks = Vec::with_capacity(nslab / 2);
-        for s in (1..nslab).step_by(2) {
-            let last = s + 1 == nslab;
-            let end = if last { n } else { b[s + 2] };
-            let (w, r) = rest.split_at_mut(end - off);
-            let win = if last {
-                Win {
-                    a: w,
-                    a0: off,
-                    b: head.take().unwrap_or_default(),
-                    b0: 0,
+    let vir: Vec<std::sync::OnceLock<DMat3>> = (0..nslab).map(|_| std::sync::OnceLock::new()).collect();
+    // Even neighbours each odd slab still waits for (one when there are only two slabs).
+    let wait: Vec<std::sync::atomic::AtomicUsize> = (0..nslab / 2)
+        .map(|_| std::sync::atomic::AtomicUsize::new(if nslab == 2 { 1 } else { 2 }))
+        .collect();
+    let forces = SharedForces::new(sf);
+    let (b, vir, wait, forces) = (&b, &vir, &wait, &forces);
+    let layers = move |s: usize| (s, if s + 1 == nslab { nz } else { s + 1 });
+    let odd = move |s: usize| {
+        let last = s + 1 == nslab;
+        let (lo, hi) = (b[s], if last { n } else { b[s + 2] });
+        // SAFETY: this odd slab's windows, lo..hi and (for the last slab) 0..b[1], overlap
+        // only the windows of the even slabs s − 1 and s + 1 (mod nslab), which have finished
+        // and dropped them (the counter in `wait` reached zero after both), and no other odd
+        // slab's.
+        #[allow(unsafe_code)]
+        let mut w = unsafe {
+            Win {
+                a: forces.window(lo, hi),
+                a0: lo,
+                b: if last { forces.window(0, b[1]) } else { &mut [] },
+                b0: 0,
+            }
+        };
+        let m = slab::<K, V, ONE>(cl, table, run, layers(s), &mut w, le);
+        vir[s].set(m).expect("each slab runs once");
+    };
+    rayon::scope(|sc| {
+        for e in (0..nslab).step_by(2) {
+            sc.spawn(move |sc| {
+                let (lo, hi) = (b[e], b[e + 2]);
+                {
+                    // SAFETY: the even slabs' windows are disjoint, and an odd slab overlapping
+                    // this one starts only after this task has released it below.
+                    #[allow(unsafe_code)]
+                    let a = unsafe { forces.window(lo, hi) };
+                    a.fill(DVec3::ZERO);
+                    let mut w = Win {
+                        a,
+                        a0: lo,
+                        b: &mut [],
+                        b0: 0,
+                    };
+                    let m = slab::<K, V, ONE>(cl, table, run, layers(e), &mut w, le);
+                    vir[e].set(m).expect("each slab runs once");
                 }
-            } else {
-                Win {
-                    a: w,
-                    a0: off,
-                    b: &mut [],
-                    b0: 0,
+                let (up, down) = (e + 1, (e + nslab - 1) % nslab);
+                for o in [Some(up), (down != up).then_some(down)].into_iter().flatten() {
+                    if wait[o / 2].fetch_sub(1, std::sync::atomic::Ordering::AcqRel) == 1 {
+                        sc.spawn(move |_| odd(o));
+                    }
                 }
-            };
-            tasks.push((s, win));
-            rest = r;
-            off = end;
+            });
         }
-        let out: Vec<(usize, DMat3)> = tasks
-            .into_par_iter()
-            .map(|(s, mut w)| (s, slab::<K, V, ONE>(cl, table, run, layers(s), &mut w, le)))
-            .collect();
-        for (s, m) in out {
-            vir[s] = m;
-        }
-    }
-    vir.iter().fold(DMat3::ZERO, |acc, m| acc + *m)
+    });
+    vir.iter()
+        .map(|m| *m.get().expect("every slab ran"))
+        .fold(DMat3::ZERO, |acc, m| acc + m)
 }
 
 isa_builds!(slab, slab_avx2, slab_avx512, slab_body, run, (cl: &CellList, table: &KernelTable<K>, run: Run, zz: (usize, usize), win: &mut Win<'_>, le: bool), (cl, table, run, zz, win, le));
