@@ -412,7 +412,7 @@ impl<'a> SharedForces<'a> {
 
 /// Slabs are single z-layers of cells, except that with an odd layer count the last slab holds
 /// the last two layers, so the slab count is even. A slab writes only to itself and the next
-/// slab. The even slabs run first, in parallel (their windows tile the array, and each zeroes
+/// slab. The even slabs are started in parallel (their windows tile the array, and each zeroes
 /// its window first); odd slab 2k + 1 runs as soon as its two even neighbours 2k and 2k + 2
 /// (mod the slab count) have finished, the only slabs whose windows overlap its own. So no two
 /// concurrent tasks share a particle, there is no barrier between the even and the odd slabs,
