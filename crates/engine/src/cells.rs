@@ -8,6 +8,7 @@
 use glam::DVec3;
 use rayon::prelude::*;
 
+use crate::shared::SharedSlice;
 use crate::{EngineError, PeriodicBox, Real};
 
 /// Entries past the last particle in the padded sorted arrays (≥ the pair loop's lanes − 1).
@@ -29,41 +30,6 @@ const CELL_CHUNK: usize = 4096;
 
 /// Sorted indices per task of the sorted copy.
 const COPY_CHUNK: usize = 2048;
-
-/// Writes into a `u32` slice from several threads at indices that the caller guarantees to be
-/// distinct (the counting sort's insertion points).
-struct Scatter<'a> {
-    ptr: *mut u32,
-    len: usize,
-    _slice: std::marker::PhantomData<&'a mut [u32]>,
-}
-
-// SAFETY: `Scatter` is only a pointer to a slice borrowed mutably for its lifetime; concurrent
-// `write`s are sound because their callers write distinct indices (see `write`).
-#[allow(unsafe_code)]
-unsafe impl Sync for Scatter<'_> {}
-
-impl<'a> Scatter<'a> {
-    fn new(v: &'a mut [u32]) -> Self {
-        Self {
-            ptr: v.as_mut_ptr(),
-            len: v.len(),
-            _slice: std::marker::PhantomData,
-        }
-    }
-
-    /// Writes `v` at `k`; panics if `k` is out of range.
-    ///
-    /// # Safety
-    /// No other thread reads or writes index `k` while the `Scatter` lives.
-    #[allow(unsafe_code)]
-    #[inline(always)]
-    unsafe fn write(&self, k: usize, v: u32) {
-        assert!(k < self.len, "sorted index out of range");
-        // SAFETY: in bounds (checked); exclusive by the caller's guarantee.
-        unsafe { *self.ptr.add(k) = v }
-    }
-}
 
 /// The grid of cells.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -333,7 +299,7 @@ impl CellList {
         // 4. Each block places its particles, in storage order, at its own insertion points.
         {
             let off = &self.off;
-            let perm = Scatter::new(&mut self.perm);
+            let perm = SharedSlice::new(&mut self.perm);
             self.inv
                 .par_chunks_mut(bl)
                 .zip(self.cell.par_chunks(bl))

@@ -45,6 +45,7 @@ pub mod pairs;
 pub mod params;
 pub mod particles;
 pub mod rng;
+mod shared;
 pub mod sim;
 mod simd;
 pub mod walls;

@@ -22,6 +22,7 @@ use rayon::prelude::*;
 use crate::cells::CellList;
 use crate::kernel::{KernelTable, PairKernel};
 use crate::rng::pair_xi;
+use crate::shared::SharedSlice;
 use crate::simd;
 use crate::{ForceScheme, Real};
 
@@ -375,41 +376,6 @@ impl Win<'_> {
     }
 }
 
-/// The sorted force array, shared by the slab tasks of [`half_shell`]: their windows overlap in
-/// memory, but a task runs only after every task whose window overlaps its own has finished.
-struct SharedForces<'a> {
-    ptr: *mut DVec3,
-    len: usize,
-    _slice: std::marker::PhantomData<&'a mut [DVec3]>,
-}
-
-// SAFETY: only a pointer to a slice borrowed mutably for its lifetime; the tasks that take
-// windows of it from several threads never hold overlapping windows at the same time (see
-// `window`).
-#[allow(unsafe_code)]
-unsafe impl Sync for SharedForces<'_> {}
-
-impl<'a> SharedForces<'a> {
-    fn new(v: &'a mut [DVec3]) -> Self {
-        Self {
-            ptr: v.as_mut_ptr(),
-            len: v.len(),
-            _slice: std::marker::PhantomData,
-        }
-    }
-
-    /// Entries `lo..hi`; panics unless `lo ≤ hi ≤ len`.
-    ///
-    /// # Safety
-    /// No other window overlapping `lo..hi` may be alive while the returned one is.
-    #[allow(unsafe_code, clippy::mut_from_ref)]
-    unsafe fn window(&self, lo: usize, hi: usize) -> &mut [DVec3] {
-        assert!(lo <= hi && hi <= self.len, "window out of range");
-        // SAFETY: in bounds (checked); exclusive by the caller's guarantee.
-        unsafe { std::slice::from_raw_parts_mut(self.ptr.add(lo), hi - lo) }
-    }
-}
-
 /// Slabs are single z-layers of cells, except that with an odd layer count the last slab holds
 /// the last two layers, so the slab count is even. A slab writes only to itself and the next
 /// slab. The even slabs are started in parallel (their windows tile the array, and each zeroes
@@ -437,7 +403,9 @@ fn half_shell<K: PairKernel, const V: bool, const ONE: bool>(
     let wait: Vec<std::sync::atomic::AtomicUsize> = (0..nslab / 2)
         .map(|_| std::sync::atomic::AtomicUsize::new(if nslab == 2 { 1 } else { 2 }))
         .collect();
-    let forces = SharedForces::new(sf);
+    // The sorted forces, shared by the slab tasks: their windows overlap in memory, but a task
+    // runs only after every task whose window overlaps its own has finished.
+    let forces = SharedSlice::new(sf);
     let (b, vir, wait, forces) = (&b, &vir, &wait, &forces);
     let layers = move |s: usize| (s, if s + 1 == nslab { nz } else { s + 1 });
     let odd = move |s: usize| {
