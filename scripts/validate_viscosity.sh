@@ -13,8 +13,8 @@
 # Every step asserts or fails; the numbers for the docs are the SUMMARY lines.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-cargo test -p hemodpd-engine --test viscosity -- --ignored --nocapture --test-threads 1 2>&1 | tee /dev/stderr | grep -q "test result: ok"
-cargo test -p hemodpd-engine --test lees_edwards -- --ignored --nocapture 2>&1 | tee /dev/stderr | grep -q "test result: ok"
+cargo test -p hemodpd-engine --test engine -- --ignored --nocapture --test-threads 1 viscosity:: 2>&1 | tee /dev/stderr | grep -q "test result: ok"
+cargo test -p hemodpd-engine --test engine -- --ignored --nocapture lees_edwards:: 2>&1 | tee /dev/stderr | grep -q "test result: ok"
 if [[ "${SKIP_LAMMPS:-0}" != 1 ]]; then
   ./scripts/lammps_viscosity.sh 0.05 50000
 else

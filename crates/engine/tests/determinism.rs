@@ -1,8 +1,7 @@
 //! Bit-identical results across thread counts and across a checkpoint/restart.
 
-mod common;
 
-use common::{bits, standard};
+use crate::common::{bits, standard};
 use hemodpd_engine::{ForceScheme, Simulation};
 
 fn run_in_pool(threads: usize, scheme: ForceScheme, steps: u64) -> (Vec<[u64; 3]>, Vec<[u64; 3]>) {

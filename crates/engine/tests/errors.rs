@@ -1,8 +1,7 @@
 //! Bad input and numerical instability are typed errors, never panics or NaNs.
 
-mod common;
 
-use common::standard;
+use crate::common::standard;
 use glam::DVec3;
 use hemodpd_engine::{
     init, EngineError, Extension, ForceField, ForceScheme, PairParams, Particles, SimConfig, Simulation, StateMut,

@@ -1,7 +1,6 @@
 //! The extension seam: hooks are called in order once per step, frozen types do not move,
 //! body forces act.
 
-mod common;
 
 use glam::DVec3;
 use hemodpd_engine::{
