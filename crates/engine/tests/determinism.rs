@@ -1,6 +1,5 @@
 //! Bit-identical results across thread counts and across a checkpoint/restart.
 
-
 use crate::common::{bits, standard};
 use hemodpd_engine::{ForceScheme, Simulation};
 

@@ -1,6 +1,5 @@
 //! Bad input and numerical instability are typed errors, never panics or NaNs.
 
-
 use crate::common::standard;
 use glam::DVec3;
 use hemodpd_engine::{

@@ -1,7 +1,6 @@
 //! The extension seam: hooks are called in order once per step, frozen types do not move,
 //! body forces act.
 
-
 use glam::DVec3;
 use hemodpd_engine::{
     init, observe, EngineError, Extension, ForceField, PairParams, SimConfig, Simulation, StateMut, TypeSpec,

@@ -7,7 +7,6 @@
 //! * the steady linear profile, the temperature of the peculiar velocities, and the shear
 //!   viscosity from the xy pressure tensor against the reverse-Poiseuille value.
 
-
 use crate::common::bits;
 use glam::{DMat3, DVec3};
 use hemodpd_engine::kernel::{DpdLinear, PairKernel};

@@ -1,7 +1,6 @@
 //! Physical checks of the engine against numbers: momentum conservation, the Groot–Warren
 //! standard fluid's temperature and pressure, Newton's third law in the pair loop.
 
-
 use crate::common::standard;
 use glam::DVec3;
 use hemodpd_engine::{observe, ForceField, ForceScheme, PairParams, Particles, SimConfig, Simulation};

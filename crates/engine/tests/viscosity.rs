@@ -4,7 +4,6 @@
 //! parabola v_x = (ρg/2η) z'(h − z') + c (h = Lz/2, z' measured from the half's start, sign
 //! flipped in the second half); a least-squares fit of A = ρg/2η in each half gives η.
 
-
 use glam::DVec3;
 use hemodpd_engine::{init, observe, EngineError, Extension, ForceField, PairParams, SimConfig, Simulation, StateMut};
 
