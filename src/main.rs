@@ -10,6 +10,12 @@ use std::path::{Path, PathBuf};
 
 mod sweep;
 
+/// mimalloc: faster allocation, and on Linux it asks for transparent huge pages
+/// (`madvise(MADV_HUGEPAGE)`) for its large regions, which holds the engine's particle arrays in
+/// fewer TLB entries (docs/performance.md, "The seventh pass").
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 #[derive(Parser)]
 #[command(
     name = "hemodpd",

@@ -12,6 +12,11 @@ use std::time::Instant;
 use glam::DVec3;
 use hemodpd_engine::{init, observe, EngineError, ForceField, ForceScheme, PairParams, SimConfig, Simulation};
 
+/// The allocator of the `hemodpd` binary (mimalloc, with transparent huge pages for large
+/// arrays), so that this benchmark measures what a scenario run gets.
+#[global_allocator]
+static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
+
 fn main() -> Result<(), EngineError> {
     let a: Vec<String> = std::env::args().skip(1).collect();
     let l: f64 = a.first().and_then(|s| s.parse().ok()).unwrap_or(20.0);

@@ -31,6 +31,11 @@ const CELL_CHUNK: usize = 4096;
 /// Sorted indices per task of the sorted copy.
 const COPY_CHUNK: usize = 2048;
 
+/// How many sorted indices ahead the sorted copy, and the gather of the forces back to storage
+/// order, prefetch their sources: enough to cover a miss to memory at 192,000 particles, where
+/// the arrays outgrow the caches (docs/performance.md, "The seventh pass").
+pub(crate) const AHEAD: usize = 16;
+
 /// The grid of cells.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct CellGrid {
@@ -214,6 +219,20 @@ impl CellList {
     /// each block places its particles. The result is the one order of a stable sort, so it is
     /// the same for any number of blocks or threads.
     pub fn build(&mut self, pos: &[DVec3], ptype: &[u16], id: &[u32], vel_of: impl Fn(usize) -> DVec3 + Sync) {
+        self.build_prefetching(pos, ptype, id, vel_of, |_| {});
+    }
+
+    /// [`Self::build`], calling `prefetch(i)` [`AHEAD`] places before the sorted copy reads
+    /// storage index i, so that the caller can prefetch what `vel_of(i)` will read (the position is
+    /// prefetched here). Hints only: the result is that of `build`.
+    pub fn build_prefetching(
+        &mut self,
+        pos: &[DVec3],
+        ptype: &[u16],
+        id: &[u32],
+        vel_of: impl Fn(usize) -> DVec3 + Sync,
+        prefetch: impl Fn(usize) + Sync,
+    ) {
         let n = pos.len();
         assert!(ptype.len() == n && id.len() == n, "one type and id per position");
         assert!(n < u32::MAX as usize, "too many particles");
@@ -353,6 +372,11 @@ impl CellList {
                     .zip(pz.iter_mut())
                     .enumerate()
                 {
+                    if let Some(&a) = perm.get(k0 + dk + AHEAD) {
+                        let a = a as usize;
+                        crate::shared::prefetch(pos, a);
+                        prefetch(a);
+                    }
                     let i = perm[k0 + dk] as usize;
                     let p = pos[i];
                     *x = p;

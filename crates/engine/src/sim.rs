@@ -11,13 +11,17 @@
 //! The forces of the last evaluation are kept in [`Particles::force`]; they are part of the
 //! checkpoint ([`SimState`]) so that a restart continues bit-identically.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
-use crate::cells::{CellGrid, CellList, MIN_LEN};
+use crate::cells::{CellGrid, CellList, AHEAD, MIN_LEN};
 use crate::error::{CAUSE_DT, CAUSE_FAST};
 use crate::kernel::DpdTable;
 use crate::rng::step_key;
+use crate::shared;
 use crate::{pairs, EngineError, ForceField, Particles, PeriodicBox, Real, SimConfig, SimState, StateMut};
 
 /// Hooks called by [`Simulation::step`]. Every method has a do-nothing default, and `()`
@@ -396,7 +400,11 @@ impl<E: Extension> Simulation<E> {
                 p.vel[i] + p.force[i] * (c * inv_mass[t])
             }
         };
-        self.cells.build(&p.pos, &p.ptype, &p.id, vel_of);
+        let prefetch = |i: usize| {
+            shared::prefetch(&p.vel, i);
+            shared::prefetch(&p.force, i);
+        };
+        self.cells.build_prefetching(&p.pos, &p.ptype, &p.id, vel_of, prefetch);
         let key = step_key(self.config.seed, key_step);
         let shear = self.domain.is_sheared().then(|| pairs::ShearImages {
             offset: self.domain.offset(),
@@ -418,8 +426,12 @@ impl<E: Extension> Simulation<E> {
                 .par_iter_mut()
                 .zip(inv.par_iter())
                 .zip(p.ptype.par_iter())
+                .enumerate()
                 .with_min_len(MIN_LEN)
-                .for_each(|((f, &k), &t)| {
+                .for_each(|(i, ((f, &k), &t))| {
+                    if let Some(&a) = inv.get(i + AHEAD) {
+                        shared::prefetch(sforce, a as usize);
+                    }
                     let t = t as usize;
                     *f = if frozen[t] {
                         sforce[k as usize]
@@ -431,8 +443,14 @@ impl<E: Extension> Simulation<E> {
             p.force
                 .par_iter_mut()
                 .zip(inv.par_iter())
+                .enumerate()
                 .with_min_len(MIN_LEN)
-                .for_each(|(f, &k)| *f = sforce[k as usize]);
+                .for_each(|(i, (f, &k))| {
+                    if let Some(&a) = inv.get(i + AHEAD) {
+                        shared::prefetch(sforce, a as usize);
+                    }
+                    *f = sforce[k as usize]
+                });
         }
         Ok(w)
     }
@@ -444,7 +462,24 @@ impl<E: Extension> Simulation<E> {
         Ok(w)
     }
 
+    /// One step. With two or more threads another worker is kept awake through the step
+    /// ([`keep_awake`]), so that the step's parallel regions do not each wait for a sleeping
+    /// thread to be woken.
     fn advance(&mut self, virial: bool) -> Result<DMat3, EngineError> {
+        if rayon::current_num_threads() < 2 {
+            return self.advance_step(virial);
+        }
+        let done = AtomicBool::new(false);
+        let caller = rayon::current_thread_index();
+        rayon::in_place_scope(|s| {
+            s.spawn(|_| keep_awake(&done, caller));
+            let result = self.advance_step(virial);
+            done.store(true, Ordering::Release);
+            result
+        })
+    }
+
+    fn advance_step(&mut self, virial: bool) -> Result<DMat3, EngineError> {
         let dt = self.config.dt;
         let h = 0.5 * dt;
         let step = self.step;
@@ -620,5 +655,63 @@ fn wrap_ext(e: EngineError, step: u64) -> EngineError {
             step,
             message: other.to_string(),
         },
+    }
+}
+
+/// How long [`keep_awake`] spins without finding work before it lets its thread go to sleep.
+const KEEP_AWAKE_IDLE: Duration = Duration::from_micros(200);
+
+/// Runs the pool's pending work on this worker until `done` is set, spinning in between, so that
+/// the worker is awake whenever the step on thread `caller` starts a parallel region: rayon puts
+/// an idle worker to sleep after a few dozen rounds without work, and waking it costs more on a
+/// virtual machine, where the vCPU may have been halted, than the step's short regions are worth
+/// (docs/performance.md, "The seventh pass"). Returns at once on `caller` itself (the step is
+/// over by the time the caller could run this job), and after [`KEEP_AWAKE_IDLE`] without work, so
+/// that it can never hold its thread for long: a sequential stretch of the step, or a worker that
+/// picked this up while waiting inside other work, goes back to rayon's own scheduling. Which
+/// thread runs which job never changes a result (docs/engine.md, "Determinism").
+fn keep_awake(done: &AtomicBool, caller: Option<usize>) {
+    if rayon::current_thread_index() == caller {
+        return;
+    }
+    let mut idle_since: Option<Instant> = None;
+    while !done.load(Ordering::Acquire) {
+        if rayon::yield_now() == Some(rayon::Yield::Executed) {
+            idle_since = None;
+        } else if idle_since.get_or_insert_with(Instant::now).elapsed() > KEEP_AWAKE_IDLE {
+            return;
+        } else {
+            std::hint::spin_loop();
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn keep_awake_returns_on_the_caller_when_done_and_when_idle() {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        pool.install(|| {
+            let never = AtomicBool::new(false);
+            // On the caller's own thread it returns at once, even though `done` is never set.
+            keep_awake(&never, rayon::current_thread_index());
+            // Elsewhere, with no work in the pool, it gives up after the idle limit.
+            let t = Instant::now();
+            keep_awake(&never, None);
+            assert!(t.elapsed() >= KEEP_AWAKE_IDLE, "returned before the idle limit");
+            // And it runs the pool's pending work until `done` is set.
+            let done = AtomicBool::new(false);
+            let ran = std::sync::atomic::AtomicUsize::new(0);
+            rayon::in_place_scope(|s| {
+                s.spawn(|_| keep_awake(&done, None));
+                (0..64).into_par_iter().for_each(|_| {
+                    ran.fetch_add(1, Ordering::Relaxed);
+                });
+                done.store(true, Ordering::Release);
+            });
+            assert_eq!(ran.load(Ordering::Relaxed), 64);
+        });
     }
 }
