@@ -689,29 +689,46 @@ fn keep_awake(done: &AtomicBool, caller: Option<usize>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::atomic::AtomicUsize;
+
+    /// Calls `keep_awake(done, caller)` on a 1-thread pool while one job, which counts its runs,
+    /// waits in that thread's deque; returns how often the job had run when `keep_awake`
+    /// returned, and how long `keep_awake` took. On one thread nothing else can run the job.
+    fn with_one_pending_job(done: bool, caller_is_self: bool) -> (usize, Duration) {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+        pool.install(|| {
+            let (ran, flag) = (AtomicUsize::new(0), AtomicBool::new(done));
+            let caller = if caller_is_self {
+                rayon::current_thread_index()
+            } else {
+                None
+            };
+            let mut seen = (0, Duration::ZERO);
+            rayon::in_place_scope(|s| {
+                s.spawn(|_| {
+                    ran.fetch_add(1, Ordering::SeqCst);
+                });
+                let t = Instant::now();
+                keep_awake(&flag, caller);
+                seen = (ran.load(Ordering::SeqCst), t.elapsed());
+            });
+            assert_eq!(ran.load(Ordering::SeqCst), 1, "the scope runs the job in the end");
+            seen
+        })
+    }
 
     #[test]
-    fn keep_awake_returns_on_the_caller_when_done_and_when_idle() {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
-        pool.install(|| {
-            let never = AtomicBool::new(false);
-            // On the caller's own thread it returns at once, even though `done` is never set.
-            keep_awake(&never, rayon::current_thread_index());
-            // Elsewhere, with no work in the pool, it gives up after the idle limit.
-            let t = Instant::now();
-            keep_awake(&never, None);
-            assert!(t.elapsed() >= KEEP_AWAKE_IDLE, "returned before the idle limit");
-            // And it runs the pool's pending work until `done` is set.
-            let done = AtomicBool::new(false);
-            let ran = std::sync::atomic::AtomicUsize::new(0);
-            rayon::in_place_scope(|s| {
-                s.spawn(|_| keep_awake(&done, None));
-                (0..64).into_par_iter().for_each(|_| {
-                    ran.fetch_add(1, Ordering::Relaxed);
-                });
-                done.store(true, Ordering::Release);
-            });
-            assert_eq!(ran.load(Ordering::Relaxed), 64);
-        });
+    fn keep_awake_runs_pending_work_and_stops_when_it_should() {
+        // On the stepping thread itself it returns at once: the job has not run.
+        assert_eq!(with_one_pending_job(false, true).0, 0);
+        // Once the step is done it returns at once, too.
+        assert_eq!(with_one_pending_job(true, false).0, 0);
+        // Otherwise it runs the pending job, then gives up after the idle limit.
+        let (ran, took) = with_one_pending_job(false, false);
+        assert_eq!(ran, 1);
+        assert!(
+            took >= KEEP_AWAKE_IDLE,
+            "returned after {took:?}, before the idle limit"
+        );
     }
 }
