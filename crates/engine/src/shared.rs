@@ -2,7 +2,9 @@
 //! that the caller guarantees no other thread touches meanwhile. The cell sort places particles
 //! through it ([`write`](SharedSlice::write)) and the half-shell slab tasks take their force
 //! windows from it ([`window`](SharedSlice::window)); each use states at its call why the places
-//! are disjoint. Every access is bounds-checked.
+//! are disjoint. Every access is bounds-checked. Also [`prefetch`], the cache hint that the cell
+//! build and the gather of the forces back to storage order use on the slices they read through a
+//! permutation.
 
 use std::marker::PhantomData;
 
