@@ -173,8 +173,11 @@ impl Verlet {
         let n = p.len();
         assert!(n <= J_MASK as usize);
         self.perm.clone_from(&self.cl.perm);
-        self.xref.clone_from(&self.cl.pos);
-        self.id.clone_from(&self.cl.id);
+        let cl = &self.cl;
+        self.xref.clear();
+        self.xref.extend((0..cl.len()).map(|k| cl.position(k)));
+        self.id.clear();
+        self.id.extend((0..cl.len()).map(|k| cl.id(k)));
         self.start.clear();
         self.start.push(0);
         let g = self.cl.grid;

@@ -136,6 +136,20 @@ impl CellGrid {
     }
 }
 
+/// One sorted particle's position (x, y, z), velocity (x, y, z) and id (the bits of the f64 at
+/// index 6 are the id as u64), in one 64-byte aligned cache line: the vectorised force kernel
+/// loads 8 partners' records and transposes them instead of gathering each quantity.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[repr(C, align(64))]
+pub(crate) struct Record(pub [Real; 8]);
+
+impl Record {
+    #[inline(always)]
+    fn new(x: DVec3, v: DVec3, id: u32) -> Self {
+        Self([x.x, x.y, x.z, v.x, v.y, v.z, f64::from_bits(id as u64), 0.0])
+    }
+}
+
 /// A cell list with the cell-sorted copy of the particle data the pair loop reads.
 #[derive(Debug, Clone)]
 pub struct CellList {
@@ -145,10 +159,9 @@ pub struct CellList {
     pub start: Vec<u32>,
     /// Sorted index → storage index.
     pub perm: Vec<u32>,
-    /// Sorted positions.
-    pub pos: Vec<DVec3>,
-    /// Sorted velocities used by the dissipative force (the predicted velocities).
-    pub vel: Vec<DVec3>,
+    /// Per sorted particle: position, velocity used by the dissipative force (the predicted
+    /// velocity) and id ([`CellList::position`], [`CellList::velocity`], [`CellList::id`]).
+    pub(crate) rec: Vec<Record>,
     /// Sorted positions as structure of arrays, for the vectorised distance test; each is
     /// padded with [`PAD`] zeros past the last particle so a chunk of lanes may read past a range.
     pub px: Vec<Real>,
@@ -169,8 +182,6 @@ pub struct CellList {
     pub(crate) pz32: Vec<f32>,
     /// Sorted types (padded like [`CellList::px`], with type 0).
     pub ptype: Vec<u16>,
-    /// Sorted ids.
-    pub id: Vec<u32>,
     cell: Vec<u32>,
     inv: Vec<u32>,
     /// Per block of the sort, its particle count per cell, then its running insertion point.
@@ -190,7 +201,6 @@ impl CellList {
             grid,
             start: vec![0; grid.ncells() + 1],
             perm: Vec::new(),
-            pos: Vec::new(),
             px: Vec::new(),
             py: Vec::new(),
             pz: Vec::new(),
@@ -198,9 +208,8 @@ impl CellList {
             px32: Vec::new(),
             py32: Vec::new(),
             pz32: Vec::new(),
-            vel: Vec::new(),
+            rec: Vec::new(),
             ptype: Vec::new(),
-            id: Vec::new(),
             cell: Vec::new(),
             inv: Vec::new(),
             hist: Vec::new(),
@@ -241,11 +250,10 @@ impl CellList {
         if n == 0 {
             self.start.clear();
             self.start.resize(nc + 1, 0);
-            for v in [&mut self.cell, &mut self.inv, &mut self.perm, &mut self.id] {
+            for v in [&mut self.cell, &mut self.inv, &mut self.perm] {
                 v.clear();
             }
-            self.pos.clear();
-            self.vel.clear();
+            self.rec.clear();
             for a in [&mut self.px, &mut self.py, &mut self.pz] {
                 a.clear();
                 a.resize(PAD, 0.0);
@@ -344,9 +352,7 @@ impl CellList {
                 });
         }
         // 5. The sorted copies (a parallel gather), single precision on the way if wanted.
-        self.pos.resize(n, DVec3::ZERO);
-        self.vel.resize(n, DVec3::ZERO);
-        self.id.resize(n, 0);
+        self.rec.resize(n, Record::default());
         for a in [&mut self.px, &mut self.py, &mut self.pz] {
             a.resize(n + PAD, 0.0);
             a[n..].fill(0.0);
@@ -360,38 +366,31 @@ impl CellList {
             }
         }
         let (perm, single) = (&self.perm, self.single);
-        let gather =
-            |k0: usize, x: &mut [DVec3], v: &mut [DVec3], t: &mut [u16], d: &mut [u32], p64: [&mut [Real]; 3]| {
-                let [px, py, pz] = p64;
-                for (dk, (((((x, v), t), d), (px, py)), pz)) in x
-                    .iter_mut()
-                    .zip(v.iter_mut())
-                    .zip(t.iter_mut())
-                    .zip(d.iter_mut())
-                    .zip(px.iter_mut().zip(py.iter_mut()))
-                    .zip(pz.iter_mut())
-                    .enumerate()
-                {
-                    if let Some(&a) = perm.get(k0 + dk + AHEAD) {
-                        let a = a as usize;
-                        crate::shared::prefetch(pos, a);
-                        prefetch(a);
-                    }
-                    let i = perm[k0 + dk] as usize;
-                    let p = pos[i];
-                    *x = p;
-                    (*px, *py, *pz) = (p.x, p.y, p.z);
-                    *v = vel_of(i);
-                    *t = ptype[i];
-                    *d = id[i];
+        let gather = |k0: usize, rec: &mut [Record], t: &mut [u16], p64: [&mut [Real]; 3]| {
+            let [px, py, pz] = p64;
+            for (dk, (((r, t), (px, py)), pz)) in rec
+                .iter_mut()
+                .zip(t.iter_mut())
+                .zip(px.iter_mut().zip(py.iter_mut()))
+                .zip(pz.iter_mut())
+                .enumerate()
+            {
+                if let Some(&a) = perm.get(k0 + dk + AHEAD) {
+                    let a = a as usize;
+                    crate::shared::prefetch(pos, a);
+                    prefetch(a);
                 }
-            };
+                let i = perm[k0 + dk] as usize;
+                let p = pos[i];
+                *r = Record::new(p, vel_of(i), id[i]);
+                (*px, *py, *pz) = (p.x, p.y, p.z);
+                *t = ptype[i];
+            }
+        };
         let chunks = self
-            .pos
+            .rec
             .par_chunks_mut(COPY_CHUNK)
-            .zip(self.vel.par_chunks_mut(COPY_CHUNK))
             .zip(self.ptype[..n].par_chunks_mut(COPY_CHUNK))
-            .zip(self.id.par_chunks_mut(COPY_CHUNK))
             .zip(self.px[..n].par_chunks_mut(COPY_CHUNK))
             .zip(self.py[..n].par_chunks_mut(COPY_CHUNK))
             .zip(self.pz[..n].par_chunks_mut(COPY_CHUNK))
@@ -401,8 +400,8 @@ impl CellList {
                 .zip(self.px32[..n].par_chunks_mut(COPY_CHUNK))
                 .zip(self.py32[..n].par_chunks_mut(COPY_CHUNK))
                 .zip(self.pz32[..n].par_chunks_mut(COPY_CHUNK))
-                .for_each(|((((q, ((((((x, v), t), d), px), py), pz)), lx), ly), lz)| {
-                    gather(q * COPY_CHUNK, x, v, t, d, [&mut *px, &mut *py, &mut *pz]);
+                .for_each(|((((q, ((((r, t), px), py), pz)), lx), ly), lz)| {
+                    gather(q * COPY_CHUNK, r, t, [&mut *px, &mut *py, &mut *pz]);
                     for (l, h) in [(lx, &*px), (ly, &*py), (lz, &*pz)] {
                         for (l, &h) in l.iter_mut().zip(h) {
                             *l = h as f32;
@@ -410,10 +409,42 @@ impl CellList {
                     }
                 });
         } else {
-            chunks.for_each(|(q, ((((((x, v), t), d), px), py), pz))| {
-                gather(q * COPY_CHUNK, x, v, t, d, [px, py, pz]);
+            chunks.for_each(|(q, ((((r, t), px), py), pz))| {
+                gather(q * COPY_CHUNK, r, t, [px, py, pz]);
             });
         }
+    }
+
+    /// The number of particles in the list.
+    #[inline]
+    pub fn len(&self) -> usize {
+        self.rec.len()
+    }
+
+    /// Whether the list holds no particles.
+    #[inline]
+    pub fn is_empty(&self) -> bool {
+        self.rec.is_empty()
+    }
+
+    /// Position of sorted particle k.
+    #[inline(always)]
+    pub fn position(&self, k: usize) -> DVec3 {
+        let r = &self.rec[k].0;
+        DVec3::new(r[0], r[1], r[2])
+    }
+
+    /// Velocity of sorted particle k for the dissipative force (the `vel_of` of the build).
+    #[inline(always)]
+    pub fn velocity(&self, k: usize) -> DVec3 {
+        let r = &self.rec[k].0;
+        DVec3::new(r[3], r[4], r[5])
+    }
+
+    /// Id of sorted particle k.
+    #[inline(always)]
+    pub fn id(&self, k: usize) -> u32 {
+        self.rec[k].0[6].to_bits() as u32
     }
 
     /// Storage index → sorted index (inverse of `perm`).
@@ -480,7 +511,7 @@ mod tests {
         for c in 0..g.ncells() {
             let (a, e) = cl.range(c);
             for k in a..e {
-                assert_eq!(g.cell_of(cl.pos[k]), c);
+                assert_eq!(g.cell_of(cl.position(k)), c);
                 if k > a {
                     assert!(cl.perm[k] > cl.perm[k - 1]);
                 }
@@ -498,7 +529,7 @@ mod tests {
         let one = [DVec3::splat(1.5)];
         cl.build(&one, &[0], &[0], |_| DVec3::ZERO);
         cl.build(&[], &[], &[], |_| DVec3::ZERO);
-        assert!(cl.start.iter().all(|&s| s == 0) && cl.perm.is_empty() && cl.pos.is_empty());
+        assert!(cl.start.iter().all(|&s| s == 0) && cl.perm.is_empty() && cl.is_empty());
     }
 
     /// The parallel counting sort gives the one stable order for any number of blocks: against a
@@ -532,7 +563,7 @@ mod tests {
                 let i = i as usize;
                 assert_eq!(cl.inverse()[i] as usize, k);
                 assert_eq!(
-                    (cl.pos[k], cl.vel[k], cl.ptype[k], cl.id[k]),
+                    (cl.position(k), cl.velocity(k), cl.ptype[k], cl.id(k)),
                     (pos[i], vel[i], ty[i], id[i])
                 );
                 assert_eq!((cl.px[k], cl.py[k], cl.pz[k]), (pos[i].x, pos[i].y, pos[i].z));
@@ -543,7 +574,7 @@ mod tests {
             }
             for c in 0..g.ncells() {
                 let (a, e) = cl.range(c);
-                assert!(cl.pos[a..e].iter().all(|p| g.cell_of(*p) == c));
+                assert!((a..e).all(|k| g.cell_of(cl.position(k)) == c));
             }
             assert_eq!(cl.start[g.ncells()] as usize, n);
             assert!(cl.ptype[n..].iter().all(|&t| t == 0) && cl.px[n..].iter().all(|&x| x == 0.0));

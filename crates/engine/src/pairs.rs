@@ -172,8 +172,8 @@ fn pair_force<K: PairKernel, const ONE: bool>(
     let kern = if ONE { row[0] } else { row[cl.ptype[j] as usize] };
     // no hash for a pair without a random force (zero temperature, or the repulsion-only
     // plasma–cytosol pairs)
-    let xi = if kern.noisy() { pair_xi(key, idi, cl.id[j]) } else { 0.0 };
-    kern.force(dr, r2, (vi - cl.vel[j]) - dv_shift, xi)
+    let xi = if kern.noisy() { pair_xi(key, idi, cl.id(j)) } else { 0.0 };
+    kern.force(dr, r2, (vi - cl.velocity(j)) - dv_shift, xi)
 }
 
 /// Appends the neighbour cell range `(a, e, shift)` to `nb[..*len]`, merging it into the previous
@@ -319,7 +319,7 @@ pub fn compute<K: PairKernel>(
 ) -> DMat3 {
     // Not zeroed here: the half shell's first phase zeroes the windows it owns (which tile the
     // array) in parallel, and the gather scheme assigns every entry.
-    sf.resize(cl.pos.len(), DVec3::ZERO);
+    sf.resize(cl.len(), DVec3::ZERO);
     let one = table.ntypes() == 1;
     assert!(
         cl.single || !reads_single(table.ntypes()),
@@ -563,7 +563,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     qs.clear();
                     ns.clear();
                     for k in 0..nc {
-                        let p = cl.pos[s0 + k];
+                        let p = cl.position(s0 + k);
                         qs.push([p.x as f32, p.y as f32, p.z as f32]);
                         ns.push(k * stride);
                     }
@@ -584,7 +584,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                         simd::scan_cell_avx512(pos, rc2_32, (s0, own_end), Some(s0), 0, qs, &mut hits.h.j, ns);
                         for (t, &(a, e, s)) in nb[skip..nnb].iter().enumerate() {
                             for (k, q) in qs.iter_mut().enumerate() {
-                                let p = cl.pos[s0 + k] - s;
+                                let p = cl.position(s0 + k) - s;
                                 *q = [p.x as f32, p.y as f32, p.z as f32];
                             }
                             simd::scan_cell_avx512(pos, rc2_32, (a, e), None, t as u32 + 1, qs, &mut hits.h.j, ns);
@@ -604,7 +604,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                 }
                 hits.reserve(m);
                 for i in s0..s1 {
-                    let pi = cl.pos[i];
+                    let pi = cl.position(i);
                     let ti = if ONE { 0 } else { cl.ptype[i] as usize };
                     let (row, rc2_row) = (table.row(ti), (table.cutoff2_row(ti), table.uniform_cutoff2(ti)));
                     // The cell's own later particles, then the neighbour ranges, in visiting order.
@@ -671,7 +671,7 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     let linear = linear.filter(|_| !V);
     for (k, i) in (s0..s1).enumerate() {
         let (lo, mut hi) = (k * stride, ns[k]);
-        let (pos, q) = ([&cl.px[..], &cl.py, &cl.pz], cl.pos[i].to_array());
+        let (pos, q) = ([&cl.px[..], &cl.py, &cl.pz], cl.position(i).to_array());
         if linear.is_none() {
             // SAFETY: only called from the `slab_avx512` build (AVX-512 F, VL, DQ checked at
             // run time by `Isa::best`).
@@ -696,10 +696,9 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
             simd::linear_forces_avx512(
                 &hits.h,
                 (lo, hi),
-                &cl.vel,
-                &cl.id,
-                cl.vel[i],
-                cl.id[i],
+                &cl.rec,
+                cl.velocity(i),
+                cl.id(i),
                 key,
                 lp,
                 g,
@@ -731,7 +730,7 @@ fn hit_forces<K: PairKernel, const V: bool, const ONE: bool>(
     win: &mut Win<'_>,
     vir: &mut DMat3,
 ) {
-    let (vi, idi) = (cl.vel[i], cl.id[i]);
+    let (vi, idi) = (cl.velocity(i), cl.id(i));
     let mut fi = DVec3::ZERO;
     for k in ks {
         let hit = hits.get(k);
@@ -820,9 +819,9 @@ fn gather_layer_body<K: PairKernel, const V: bool, const ONE: bool>(
             }
             hits.reserve(m);
             for i in s0..s1 {
-                let pi = cl.pos[i];
-                let vi = cl.vel[i];
-                let idi = cl.id[i];
+                let pi = cl.position(i);
+                let vi = cl.velocity(i);
+                let idi = cl.id(i);
                 let ti = if ONE { 0 } else { cl.ptype[i] as usize };
                 let (row, rc2_row) = (table.row(ti), (table.cutoff2_row(ti), table.uniform_cutoff2(ti)));
                 // dr = (x_i − x_j) − shift is exactly the negative of what j computes for i
@@ -920,9 +919,9 @@ fn shear_cross_layer_body<K: PairKernel, const V: bool, const ONE: bool>(
             }
             hits.reserve(m);
             for i in s0..s1 {
-                let pi = cl.pos[i];
-                let vi = cl.vel[i];
-                let idi = cl.id[i];
+                let pi = cl.position(i);
+                let vi = cl.velocity(i);
+                let idi = cl.id(i);
                 let ti = if ONE { 0 } else { cl.ptype[i] as usize };
                 let (row, rc2_row) = (table.row(ti), (table.cutoff2_row(ti), table.uniform_cutoff2(ti)));
                 let mut fi = DVec3::ZERO;
@@ -996,7 +995,7 @@ mod tests {
     }
 
     fn schemes<const ONE: bool>(cl: &CellList, t: &KernelTable<DpdLinear>, run: Run) -> Vec<(Vec<DVec3>, DMat3)> {
-        let n = cl.pos.len();
+        let n = cl.len();
         let sh = ShearImages {
             offset: 2.345,
             velocity: 0.7,
@@ -1084,18 +1083,23 @@ mod tests {
             };
             for t in [&one, &two] {
                 let ty = |i: usize| if t.ntypes() == 1 { 0 } else { cl.ptype[i] as usize };
-                let n = cl.pos.len();
+                let n = cl.len();
                 let mut pairs = 0;
                 let brute: Vec<DVec3> = (0..n)
                     .map(|i| {
                         let mut f = DVec3::ZERO;
                         for j in (0..n).filter(|&j| j != i) {
-                            let mut dr = cl.pos[i] - cl.pos[j];
+                            let mut dr = cl.position(i) - cl.position(j);
                             dr -= l * (dr / l).round();
                             let (r2, k) = (dr.length_squared(), t.get(ty(i), ty(j)));
                             if r2 < k.cutoff2() {
                                 pairs += 1;
-                                f += k.force(dr, r2, cl.vel[i] - cl.vel[j], pair_xi(run.key, cl.id[i], cl.id[j]));
+                                f += k.force(
+                                    dr,
+                                    r2,
+                                    cl.velocity(i) - cl.velocity(j),
+                                    pair_xi(run.key, cl.id(i), cl.id(j)),
+                                );
                             }
                         }
                         f
@@ -1171,7 +1175,7 @@ mod tests {
         let (mut beyond, mut missed) = (0, 0);
         for i in 0..n {
             for j in 0..i {
-                let mut d = cl.pos[i] - cl.pos[j];
+                let mut d = cl.position(i) - cl.position(j);
                 d -= l * (d / l).round();
                 let d32 = [d.x as f32, d.y as f32, d.z as f32];
                 let r2_32 = d32[0] * d32[0] + d32[1] * d32[1] + d32[2] * d32[2];

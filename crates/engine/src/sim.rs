@@ -51,11 +51,22 @@ pub trait Extension {
     fn allows_reordering(&self) -> bool {
         false
     }
+
+    /// Whether [`Extension::add_forces`] may change anything. True by default; an extension
+    /// that says false is not called there, and the engine then does the second half-kick in
+    /// the same pass as the forces' return to storage order (one pass over the particles less).
+    fn adds_forces(&self) -> bool {
+        true
+    }
 }
 
 impl Extension for () {
     fn allows_reordering(&self) -> bool {
         true
+    }
+
+    fn adds_forces(&self) -> bool {
+        false
     }
 }
 
@@ -82,6 +93,10 @@ impl<A: Extension, B: Extension> Extension for (A, B) {
 
     fn allows_reordering(&self) -> bool {
         self.0.allows_reordering() && self.1.allows_reordering()
+    }
+
+    fn adds_forces(&self) -> bool {
+        self.0.adds_forces() || self.1.adds_forces()
     }
 }
 
@@ -113,6 +128,10 @@ impl<E: Extension> Extension for Option<E> {
 
     fn allows_reordering(&self) -> bool {
         self.as_ref().is_none_or(|e| e.allows_reordering())
+    }
+
+    fn adds_forces(&self) -> bool {
+        self.as_ref().is_some_and(|e| e.adds_forces())
     }
 }
 
@@ -157,6 +176,10 @@ impl<E: Extension> Extension for Timed<E> {
 
     fn allows_reordering(&self) -> bool {
         self.inner.allows_reordering()
+    }
+
+    fn adds_forces(&self) -> bool {
+        self.inner.adds_forces()
     }
 }
 
@@ -388,8 +411,17 @@ impl<E: Extension> Simulation<E> {
 
     /// Pair forces at the current positions with ṽ = v + c·f/m (c = (λ − ½)Δt during a step,
     /// 0 for the initial evaluation), noise of evaluation `self.step` (+1 during a step, via
-    /// `key_step`), plus body forces and the extension's forces.
-    fn forces_at(&mut self, key_step: u64, c: Real, virial: bool) -> Result<DMat3, EngineError> {
+    /// `key_step`), plus body forces and the extension's forces. With `kick = Some(h)` (an
+    /// extension that adds no forces) the second half-kick v += h f/m is done in the same pass
+    /// as the return of the forces to storage order, and the first particle whose velocity or
+    /// force is not finite is returned (the checks of [`Simulation::advance_step`]'s own kick).
+    fn forces_at(
+        &mut self,
+        key_step: u64,
+        c: Real,
+        virial: bool,
+        kick: Option<Real>,
+    ) -> Result<(DMat3, Option<usize>), EngineError> {
         let p = &self.particles;
         let (inv_mass, held) = (&self.inv_mass, &self.held);
         let vel_of = |i: usize| {
@@ -416,47 +448,50 @@ impl<E: Extension> Simulation<E> {
             DpdTable::Quarter(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
             DpdTable::General(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
         };
-        // Scatter back to storage order (a parallel gather through the inverse permutation),
-        // adding the body forces on the way.
+        // Back to storage order (a parallel gather through the inverse permutation), adding the
+        // body forces on the way, and kicking if asked to.
         let (sforce, inv) = (&self.sforce, self.cells.inverse());
+        let (body, frozen, any_body) = (&self.body, &self.frozen, self.any_body);
         let p = &mut self.particles;
-        if self.any_body {
-            let (body, frozen) = (&self.body, &self.frozen);
+        let force_of = |i: usize, k: u32, t: usize| {
+            if let Some(&a) = inv.get(i + AHEAD) {
+                shared::prefetch(sforce, a as usize);
+            }
+            if !any_body || frozen[t] {
+                sforce[k as usize]
+            } else {
+                sforce[k as usize] + body[t]
+            }
+        };
+        let Some(h) = kick else {
             p.force
                 .par_iter_mut()
                 .zip(inv.par_iter())
                 .zip(p.ptype.par_iter())
                 .enumerate()
                 .with_min_len(MIN_LEN)
-                .for_each(|(i, ((f, &k), &t))| {
-                    if let Some(&a) = inv.get(i + AHEAD) {
-                        shared::prefetch(sforce, a as usize);
-                    }
-                    let t = t as usize;
-                    *f = if frozen[t] {
-                        sforce[k as usize]
-                    } else {
-                        sforce[k as usize] + body[t]
-                    };
-                });
-        } else {
-            p.force
-                .par_iter_mut()
-                .zip(inv.par_iter())
-                .enumerate()
-                .with_min_len(MIN_LEN)
-                .for_each(|(i, (f, &k))| {
-                    if let Some(&a) = inv.get(i + AHEAD) {
-                        shared::prefetch(sforce, a as usize);
-                    }
-                    *f = sforce[k as usize]
-                });
-        }
-        Ok(w)
+                .for_each(|(i, ((f, &k), &t))| *f = force_of(i, k, t as usize));
+            return Ok((w, None));
+        };
+        let bad = p
+            .force
+            .par_iter_mut()
+            .zip(p.vel.par_iter_mut())
+            .zip(inv.par_iter())
+            .zip(p.ptype.par_iter())
+            .enumerate()
+            .with_min_len(MIN_LEN)
+            .filter_map(|(i, (((f, v), &k), &t))| {
+                let t = t as usize;
+                *f = force_of(i, k, t);
+                kick_and_check(v, f, held[t], h * inv_mass[t]).then_some(i)
+            })
+            .min();
+        Ok((w, bad))
     }
 
     fn compute_forces(&mut self, virial: bool) -> Result<DMat3, EngineError> {
-        let w = self.forces_at(self.step, 0.0, virial)?;
+        let (w, _) = self.forces_at(self.step, 0.0, virial, None)?;
         let (mut s, ext) = self.state_mut();
         ext.add_forces(&mut s)?;
         Ok(w)
@@ -532,19 +567,21 @@ impl<E: Extension> Simulation<E> {
             ext.after_position_update(&mut s).map_err(|e| wrap_ext(e, step))?;
         }
 
-        // 3. forces with the predicted velocity, noise of evaluation step + 1
-        let w = self.forces_at(step + 1, (self.config.lambda - 0.5) * dt, virial)?;
-        {
-            let (mut s, ext) = self.state_mut();
-            ext.add_forces(&mut s).map_err(|e| wrap_ext(e, step))?;
-        }
-
-        // 4. second half kick + finiteness check
-        {
+        // 3. forces with the predicted velocity, noise of evaluation step + 1; 4. second half
+        // kick + finiteness check (in the same pass as the forces' return to storage order if
+        // the extension adds no forces)
+        let fused = !self.ext.adds_forces();
+        let (w, bad) = self.forces_at(step + 1, (self.config.lambda - 0.5) * dt, virial, fused.then_some(h))?;
+        let bad = if fused {
+            bad
+        } else {
+            {
+                let (mut s, ext) = self.state_mut();
+                ext.add_forces(&mut s).map_err(|e| wrap_ext(e, step))?;
+            }
             let (inv_mass, held) = (&self.inv_mass, &self.held);
             let p = &mut self.particles;
-            let bad = p
-                .vel
+            p.vel
                 .par_iter_mut()
                 .zip(p.force.par_iter())
                 .zip(p.ptype.par_iter())
@@ -552,19 +589,12 @@ impl<E: Extension> Simulation<E> {
                 .with_min_len(MIN_LEN)
                 .filter_map(|(i, ((v, f), &t))| {
                     let t = t as usize;
-                    if !held[t] {
-                        *v += *f * (h * inv_mass[t]);
-                    }
-                    if v.is_finite() && f.is_finite() {
-                        None
-                    } else {
-                        Some(i)
-                    }
+                    kick_and_check(v, f, held[t], h * inv_mass[t]).then_some(i)
                 })
-                .min();
-            if let Some(i) = bad {
-                return Err(self.instability(i, step, cell));
-            }
+                .min()
+        };
+        if let Some(i) = bad {
+            return Err(self.instability(i, step, cell));
         }
         self.step += 1;
         {
@@ -656,6 +686,16 @@ fn wrap_ext(e: EngineError, step: u64) -> EngineError {
             message: other.to_string(),
         },
     }
+}
+
+/// The second half-kick of one particle, v += f · (½Δt/m) (`h_inv_mass`) unless its type is
+/// held; true if its velocity or force is then not finite.
+#[inline(always)]
+fn kick_and_check(v: &mut DVec3, f: &DVec3, held: bool, h_inv_mass: Real) -> bool {
+    if !held {
+        *v += *f * h_inv_mass;
+    }
+    !(v.is_finite() && f.is_finite())
 }
 
 /// How long [`keep_awake`] spins without finding work before it lets its thread go to sleep.

@@ -431,9 +431,9 @@ pub(crate) unsafe fn scan_cell_avx512(
 pub(crate) struct Geometry {
     p: [*const Real; 3],
     n: __m256i,
-    rc2: __m512d,
-    q: [__m512d; 3],
-    sh: [(__m512d, __m512d); 3],
+    pub(crate) rc2: __m512d,
+    pub(crate) q: [__m512d; 3],
+    pub(crate) sh: [(__m512d, __m512d); 3],
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -531,22 +531,25 @@ pub(crate) unsafe fn separations_avx512(
 
 /// The forces of [`crate::kernel::DpdLinear`] for the tagged hits `h.j[lo..hi]` of
 /// [`scan_cell_avx512`] on a particle with velocity `vi` and id `idi`, 8 pairs at a time (AVX-512
-/// F, VL and DQ), written to `out[c][k − lo]` (c = x, y, z). The separations come from `g`
-/// ([`Geometry::hits`]). Each lane runs the operations of `DpdLinear::force` and `rng::pair_xi`
-/// in their order (no fused multiply–add), so every force equals the scalar one bit for bit.
+/// F, VL and DQ), written to `out[c][k − lo]` (c = x, y, z). The 8 partners' records
+/// ([`crate::cells::Record`]) are loaded whole and transposed into positions, velocities and ids,
+/// instead of 7 gathers; the separation is `(q − sh[tag]) − x_j` component by component and r²
+/// as [`r2_512`], the operations of [`Geometry::hits`] (whose query point, shifts and cutoff
+/// `g` gives). Each lane runs the operations of `DpdLinear::force` and `rng::pair_xi` in their
+/// order (no fused multiply–add), so every force equals the scalar one bit for bit. Lanes past
+/// the last hit load the last record; their forces are masked off.
 ///
 /// # Safety
 /// Only to be called from a function compiled with AVX-512 F, VL and DQ enabled on a CPU that
 /// has them. Panics unless `h.j` holds `hi + 7` entries, each of `out` `hi − lo + 7`, and every
-/// untagged index is below `vel.len() == id.len()` and the positions' length.
+/// untagged index is below `rec.len()`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn linear_forces_avx512(
     h: &HitArrays,
     (lo, hi): (usize, usize),
-    vel: &[glam::DVec3],
-    id: &[u32],
+    rec: &[crate::cells::Record],
     vi: glam::DVec3,
     idi: u32,
     key: u64,
@@ -562,11 +565,8 @@ pub(crate) unsafe fn linear_forces_avx512(
         h.j.len() >= hi + 7 && out.iter().all(|o| o.len() >= hi - lo + 7),
         "force arrays too short"
     );
-    assert!(
-        vel.len() == id.len() && vel.len() < (i32::MAX / 3) as usize,
-        "one id per velocity"
-    );
-    let n = _mm256_set1_epi32(vel.len() as i32);
+    assert!(!rec.is_empty() && rec.len() < i32::MAX as usize, "no records");
+    let n = _mm256_set1_epi32(rec.len() as i32);
     let (one, inv_rc, a, gamma, sigma_dt) = (
         _mm512_set1_pd(1.0),
         _mm512_set1_pd(p.inv_rc),
@@ -575,8 +575,8 @@ pub(crate) unsafe fn linear_forces_avx512(
         _mm512_set1_pd(p.sigma_dt),
     );
     let (vix, viy, viz) = (_mm512_set1_pd(vi.x), _mm512_set1_pd(vi.y), _mm512_set1_pd(vi.z));
-    let idv = _mm256_set1_epi32(idi as i32);
-    let vp = vel.as_ptr().cast::<Real>();
+    let idv64 = _mm512_set1_epi64(idi as i64);
+    let (rp, last, low) = (rec.as_ptr(), rec.len() - 1, (1u32 << TAG_SHIFT) - 1);
     let mut k = lo;
     while k < hi {
         // SAFETY: k + 7 < hi + 7 ≤ the asserted lengths; the gathers read only the lanes below
@@ -584,17 +584,35 @@ pub(crate) unsafe fn linear_forces_avx512(
         unsafe {
             let valid = hi - k;
             let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
-            let (j, [dx, dy, dz, r2], pass) = g.hits(_mm256_loadu_si256(h.j.as_ptr().add(k).cast()), tail);
-            assert!(_mm256_mask_cmpge_epu32_mask(tail, j, n) == 0, "hit index out of range");
-            let j3 = _mm256_mullo_epi32(j, _mm256_set1_epi32(3));
+            let tv = _mm256_loadu_si256(h.j.as_ptr().add(k).cast());
             let zero = _mm512_setzero_pd();
-            let vjx = _mm512_mask_i32gather_pd::<8>(zero, tail, j3, vp);
-            let vjy = _mm512_mask_i32gather_pd::<8>(zero, tail, j3, vp.add(1));
-            let vjz = _mm512_mask_i32gather_pd::<8>(zero, tail, j3, vp.add(2));
+            // The 8 partners' records (lanes past the tail read the last record; their forces
+            // are masked off), transposed into x, y, z, vx, vy, vz, id.
+            let tail_j = _mm256_and_si256(tv, _mm256_set1_epi32(low as i32));
+            assert!(
+                _mm256_mask_cmpge_epu32_mask(tail, tail_j, n) == 0,
+                "hit index out of range"
+            );
+            let mut r = [zero; 8];
+            for (l, r) in r.iter_mut().enumerate() {
+                let jl = ((*h.j.get_unchecked(k + l) & low) as usize).min(last);
+                *r = _mm512_load_pd(rp.add(jl).cast());
+            }
+            let [xj, yj, zj, vjx, vjy, vjz, idj] = transpose8(r);
+            let tag = _mm512_cvtepu32_epi64(_mm256_srli_epi32::<{ TAG_SHIFT as i32 }>(tv));
+            let mut d = [zero; 3];
+            for (c, x) in [xj, yj, zj].into_iter().enumerate() {
+                let (lo, hi) = g.sh[c];
+                d[c] = _mm512_sub_pd(_mm512_sub_pd(g.q[c], _mm512_permutex2var_pd(lo, tag, hi)), x);
+            }
+            let [dx, dy, dz] = d;
+            let r2 = r2_512(dx, dy, dz);
+            let pass =
+                _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(tail, r2, g.rc2) & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(r2, zero);
             let xi = if p.noisy {
-                let idj = _mm256_mmask_i32gather_epi32::<4>(_mm256_setzero_si256(), tail, j, id.as_ptr().cast());
-                let lo32 = _mm512_cvtepu32_epi64(_mm256_min_epu32(idv, idj));
-                let hi32 = _mm512_cvtepu32_epi64(_mm256_max_epu32(idv, idj));
+                let idj = _mm512_castpd_si512(idj);
+                let lo32 = _mm512_min_epu64(idv64, idj);
+                let hi32 = _mm512_max_epu64(idv64, idj);
                 let pos = _mm512_or_si512(_mm512_slli_epi64::<32>(lo32), hi32);
                 let mut z = _mm512_add_epi64(
                     _mm512_set1_epi64(key as i64),
@@ -646,4 +664,47 @@ pub(crate) unsafe fn linear_forces_avx512(
         }
         k += 8;
     }
+}
+
+/// Transposes 8 rows of 8 f64 into the first 7 columns.
+///
+/// # Safety
+/// As [`scan_avx512`] (AVX-512 F enabled in the caller).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn transpose8(r: [__m512d; 8]) -> [__m512d; 7] {
+    // Pairs of rows interleaved: t[2m] holds columns 0, 2, 4, 6 of rows 2m, 2m + 1; t[2m + 1]
+    // columns 1, 3, 5, 7.
+    let t = [
+        _mm512_unpacklo_pd(r[0], r[1]),
+        _mm512_unpackhi_pd(r[0], r[1]),
+        _mm512_unpacklo_pd(r[2], r[3]),
+        _mm512_unpackhi_pd(r[2], r[3]),
+        _mm512_unpacklo_pd(r[4], r[5]),
+        _mm512_unpackhi_pd(r[4], r[5]),
+        _mm512_unpacklo_pd(r[6], r[7]),
+        _mm512_unpackhi_pd(r[6], r[7]),
+    ];
+    const EVEN: i32 = 0b10_00_10_00;
+    const ODD: i32 = 0b11_01_11_01;
+    // Rows 0–3 (u[..4]) and 4–7 (u[4..]): columns (0, 4), (2, 6), (1, 5), (3, 7).
+    let u = [
+        _mm512_shuffle_f64x2::<EVEN>(t[0], t[2]),
+        _mm512_shuffle_f64x2::<ODD>(t[0], t[2]),
+        _mm512_shuffle_f64x2::<EVEN>(t[1], t[3]),
+        _mm512_shuffle_f64x2::<ODD>(t[1], t[3]),
+        _mm512_shuffle_f64x2::<EVEN>(t[4], t[6]),
+        _mm512_shuffle_f64x2::<ODD>(t[4], t[6]),
+        _mm512_shuffle_f64x2::<EVEN>(t[5], t[7]),
+        _mm512_shuffle_f64x2::<ODD>(t[5], t[7]),
+    ];
+    [
+        _mm512_shuffle_f64x2::<EVEN>(u[0], u[4]),
+        _mm512_shuffle_f64x2::<EVEN>(u[2], u[6]),
+        _mm512_shuffle_f64x2::<EVEN>(u[1], u[5]),
+        _mm512_shuffle_f64x2::<EVEN>(u[3], u[7]),
+        _mm512_shuffle_f64x2::<ODD>(u[0], u[4]),
+        _mm512_shuffle_f64x2::<ODD>(u[2], u[6]),
+        _mm512_shuffle_f64x2::<ODD>(u[1], u[5]),
+    ]
 }
