@@ -502,8 +502,15 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     let (mut prev, mut prev_ns, mut pending) = (&mut scratch.prev, &mut scratch.prev_ns, None);
     #[cfg(target_arch = "x86_64")]
     let fbuf = &mut scratch.fbuf;
+    // The shifts of this cell's ranges and the previous cell's, swapped by reference below
+    // (each is 384 bytes). Only the entries of the tags in use are set.
     #[cfg(target_arch = "x86_64")]
-    let (mut sh, mut prev_sh) = ([[0.0; 16]; 3], [[0.0; 16]; 3]);
+    let mut shifts = [[[0.0; 16]; 3]; 2];
+    #[cfg(target_arch = "x86_64")]
+    let (mut sh, mut prev_sh) = {
+        let [a, b] = &mut shifts;
+        (a, b)
+    };
     #[cfg(target_arch = "x86_64")]
     let kern = (
         table.row(0),
@@ -570,7 +577,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     let pos = [&cl.px32[..], &cl.py32, &cl.pz32];
                     // The ranges' shifts by tag (0: the own range, unshifted).
                     for c in 0..3 {
-                        sh[c].fill(0.0);
+                        sh[c][0] = 0.0;
                     }
                     for (t, &(_, _, s)) in nb[skip..nnb].iter().enumerate() {
                         for c in 0..3 {
@@ -594,7 +601,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     // its hits are read well after they were stored (a load right after the
                     // compressing stores cannot be forwarded from them and stalls).
                     if let Some(p) = pending {
-                        cell_forces::<K, V, ONE>(cl, kern, (prev, prev_ns, &prev_sh), p, fbuf, win, &mut vir);
+                        cell_forces::<K, V, ONE>(cl, kern, (prev, prev_ns, prev_sh), p, fbuf, win, &mut vir);
                     }
                     std::mem::swap(&mut hits, &mut prev);
                     std::mem::swap(&mut ns, &mut prev_ns);
@@ -620,7 +627,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     }
     #[cfg(target_arch = "x86_64")]
     if let Some(p) = pending {
-        cell_forces::<K, V, ONE>(cl, kern, (prev, prev_ns, &prev_sh), p, fbuf, win, &mut vir);
+        cell_forces::<K, V, ONE>(cl, kern, (prev, prev_ns, prev_sh), p, fbuf, win, &mut vir);
     }
     SCRATCH.with(|c| c.replace(scratch));
     vir
