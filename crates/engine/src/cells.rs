@@ -172,6 +172,11 @@ pub struct CellList {
     /// Whether [`CellList::build`] fills [`CellList::px32`] etc. (true unless the owner knows
     /// that the pair loop will not read them).
     pub(crate) single: bool,
+    /// Whether [`CellList::build`] fills [`CellList::px`], `py`, `pz` (true unless the owner
+    /// knows that the pair loop reads the positions only from the records: the AVX-512
+    /// one-type half shell without Lees–Edwards images, [`crate::pairs::reads_soa64`]). Always
+    /// filled when [`CellList::single`] is not set.
+    pub(crate) soa64: bool,
     /// Sorted positions in single precision (padded like [`CellList::px`]), for the
     /// vectorised prefilter of the distance test, whose hits are then tested again in double
     /// precision. Filled only when [`CellList::single`] is set.
@@ -205,6 +210,7 @@ impl CellList {
             py: Vec::new(),
             pz: Vec::new(),
             single: true,
+            soa64: true,
             px32: Vec::new(),
             py32: Vec::new(),
             pz32: Vec::new(),
@@ -351,67 +357,84 @@ impl CellList {
                     }
                 });
         }
-        // 5. The sorted copies (a parallel gather), single precision on the way if wanted.
+        // 5. The sorted copies (a parallel gather): the records and types, then from the records
+        //    the positions as structure of arrays, in double and/or single precision as wanted.
+        let (single, soa64) = (self.single, self.soa64 || !self.single);
         self.rec.resize(n, Record::default());
-        for a in [&mut self.px, &mut self.py, &mut self.pz] {
-            a.resize(n + PAD, 0.0);
-            a[n..].fill(0.0);
-        }
         self.ptype.resize(n + PAD, 0);
         self.ptype[n..].fill(0);
-        if self.single {
-            for a in [&mut self.px32, &mut self.py32, &mut self.pz32] {
-                a.resize(n + PAD, 0.0);
-                a[n..].fill(0.0);
-            }
+        for (a, on) in [(&mut self.px, soa64), (&mut self.py, soa64), (&mut self.pz, soa64)] {
+            a.resize(if on { n + PAD } else { 0 }, 0.0);
+            a.iter_mut().skip(n).for_each(|x| *x = 0.0);
         }
-        let (perm, single) = (&self.perm, self.single);
-        let gather = |k0: usize, rec: &mut [Record], t: &mut [u16], p64: [&mut [Real]; 3]| {
-            let [px, py, pz] = p64;
-            for (dk, (((r, t), (px, py)), pz)) in rec
-                .iter_mut()
-                .zip(t.iter_mut())
-                .zip(px.iter_mut().zip(py.iter_mut()))
-                .zip(pz.iter_mut())
-                .enumerate()
-            {
+        for a in [&mut self.px32, &mut self.py32, &mut self.pz32] {
+            a.resize(if single { n + PAD } else { 0 }, 0.0);
+            a.iter_mut().skip(n).for_each(|x| *x = 0.0);
+        }
+        let perm = &self.perm;
+        let gather = |k0: usize, rec: &mut [Record], t: &mut [u16]| {
+            for (dk, (r, t)) in rec.iter_mut().zip(t.iter_mut()).enumerate() {
                 if let Some(&a) = perm.get(k0 + dk + AHEAD) {
                     let a = a as usize;
                     crate::shared::prefetch(pos, a);
                     prefetch(a);
                 }
                 let i = perm[k0 + dk] as usize;
-                let p = pos[i];
-                *r = Record::new(p, vel_of(i), id[i]);
-                (*px, *py, *pz) = (p.x, p.y, p.z);
+                *r = Record::new(pos[i], vel_of(i), id[i]);
                 *t = ptype[i];
+            }
+        };
+        let soa = |rec: &[Record], p64: Option<[&mut [Real]; 3]>, p32: Option<[&mut [f32]; 3]>| {
+            if let Some(p) = p64 {
+                for (c, p) in p.into_iter().enumerate() {
+                    for (x, r) in p.iter_mut().zip(rec) {
+                        *x = r.0[c];
+                    }
+                }
+            }
+            if let Some(p) = p32 {
+                for (c, p) in p.into_iter().enumerate() {
+                    for (x, r) in p.iter_mut().zip(rec) {
+                        *x = r.0[c] as f32;
+                    }
+                }
             }
         };
         let chunks = self
             .rec
             .par_chunks_mut(COPY_CHUNK)
             .zip(self.ptype[..n].par_chunks_mut(COPY_CHUNK))
-            .zip(self.px[..n].par_chunks_mut(COPY_CHUNK))
-            .zip(self.py[..n].par_chunks_mut(COPY_CHUNK))
-            .zip(self.pz[..n].par_chunks_mut(COPY_CHUNK))
             .enumerate();
-        if single {
-            chunks
-                .zip(self.px32[..n].par_chunks_mut(COPY_CHUNK))
-                .zip(self.py32[..n].par_chunks_mut(COPY_CHUNK))
-                .zip(self.pz32[..n].par_chunks_mut(COPY_CHUNK))
-                .for_each(|((((q, ((((r, t), px), py), pz)), lx), ly), lz)| {
-                    gather(q * COPY_CHUNK, r, t, [&mut *px, &mut *py, &mut *pz]);
-                    for (l, h) in [(lx, &*px), (ly, &*py), (lz, &*pz)] {
-                        for (l, &h) in l.iter_mut().zip(h) {
-                            *l = h as f32;
-                        }
-                    }
-                });
-        } else {
-            chunks.for_each(|(q, ((((r, t), px), py), pz))| {
-                gather(q * COPY_CHUNK, r, t, [px, py, pz]);
-            });
+        let (p64, p32) = (
+            [&mut self.px, &mut self.py, &mut self.pz],
+            [&mut self.px32, &mut self.py32, &mut self.pz32],
+        );
+        fn first<T: Send>(a: &mut [T], n: usize) -> rayon::slice::ChunksMut<'_, T> {
+            a[..n].par_chunks_mut(COPY_CHUNK)
+        }
+        let (n64, n32) = (if soa64 { n } else { 0 }, if single { n } else { 0 });
+        let [x64, y64, z64] = p64;
+        let [x32, y32, z32] = p32;
+        match (soa64, single) {
+            (true, true) => chunks
+                .zip(first(x64, n64).zip(first(y64, n64)).zip(first(z64, n64)))
+                .zip(first(x32, n32).zip(first(y32, n32)).zip(first(z32, n32)))
+                .for_each(|(((q, (r, t)), ((x, y), z)), ((lx, ly), lz))| {
+                    gather(q * COPY_CHUNK, r, t);
+                    soa(r, Some([x, y, z]), Some([lx, ly, lz]));
+                }),
+            (true, false) => chunks
+                .zip(first(x64, n64).zip(first(y64, n64)).zip(first(z64, n64)))
+                .for_each(|((q, (r, t)), ((x, y), z))| {
+                    gather(q * COPY_CHUNK, r, t);
+                    soa(r, Some([x, y, z]), None);
+                }),
+            (false, _) => chunks
+                .zip(first(x32, n32).zip(first(y32, n32)).zip(first(z32, n32)))
+                .for_each(|((q, (r, t)), ((lx, ly), lz))| {
+                    gather(q * COPY_CHUNK, r, t);
+                    soa(r, None, Some([lx, ly, lz]));
+                }),
         }
     }
 

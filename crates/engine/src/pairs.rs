@@ -216,6 +216,15 @@ pub(crate) fn reads_single(ntypes: usize) -> bool {
     ntypes == 1 && Isa::detect() == Isa::Avx512
 }
 
+/// Whether the pair loop reads the double-precision structure-of-arrays positions of a cell
+/// list ([`CellList::px`]) for a force table with `ntypes` particle types, in `scheme`, with or
+/// without Lees–Edwards images: all but the AVX-512 one-type half shell without images, which
+/// reads the positions from the records. The owner of the list may skip filling them otherwise
+/// ([`CellList::soa64`]).
+pub(crate) fn reads_soa64(ntypes: usize, scheme: ForceScheme, sheared: bool) -> bool {
+    !(reads_single(ntypes) && scheme == ForceScheme::HalfShell && !sheared)
+}
+
 /// What every pair task needs besides the particles and kernels.
 #[derive(Clone, Copy, Debug)]
 struct Run {
@@ -326,6 +335,10 @@ pub fn compute<K: PairKernel>(
         "the cell list has no single-precision positions"
     );
     let le = shear.is_some();
+    assert!(
+        cl.soa64 || !reads_soa64(table.ntypes(), scheme, le),
+        "the cell list has no double-precision structure-of-arrays positions"
+    );
     let run = Run {
         key,
         isa: Isa::detect(),
@@ -678,12 +691,12 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     let linear = linear.filter(|_| !V);
     for (k, i) in (s0..s1).enumerate() {
         let (lo, mut hi) = (k * stride, ns[k]);
-        let (pos, q) = ([&cl.px[..], &cl.py, &cl.pz], cl.position(i).to_array());
+        let (rec, q) = (&cl.rec[..], cl.position(i).to_array());
         if linear.is_none() {
             // SAFETY: only called from the `slab_avx512` build (AVX-512 F, VL, DQ checked at
             // run time by `Isa::best`).
             #[allow(unsafe_code)]
-            let end = unsafe { simd::separations_avx512(&mut hits.h, (lo, hi), pos, q, sh, rc2) };
+            let end = unsafe { simd::separations_avx512(&mut hits.h, (lo, hi), rec, q, sh, rc2) };
             hi = end;
         }
         let Some(lp) = linear else {
@@ -699,7 +712,7 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
         // all three checked at run time (`Isa::best`).
         #[allow(unsafe_code)]
         unsafe {
-            let g = simd::Geometry::new(pos, q, sh, rc2);
+            let g = simd::Geometry::new(rec, q, sh, rc2);
             simd::linear_forces_avx512(
                 &hits.h,
                 (lo, hi),
@@ -1125,6 +1138,40 @@ mod tests {
                         );
                     }
                 }
+            }
+        }
+    }
+
+    /// The AVX-512 one-type half shell reads the positions from the records only: a list built
+    /// without the double-precision structure of arrays gives the same forces and virial bit
+    /// for bit. Where the CPU lacks AVX-512 every path reads that structure of arrays, and the
+    /// pair loop refuses a list without it.
+    #[test]
+    fn the_one_type_half_shell_needs_no_double_precision_arrays() {
+        let (cl, one, _) = setup(1.0);
+        let n = cl.len();
+        let sorted = |f: &dyn Fn(usize) -> DVec3| (0..n).map(f).collect::<Vec<_>>();
+        let (pos, vel) = (sorted(&|k| cl.position(k)), sorted(&|k| cl.velocity(k)));
+        let id: Vec<u32> = (0..n).map(|k| cl.id(k)).collect();
+        let mut lean = CellList::new(cl.grid);
+        lean.soa64 = false;
+        lean.build(&pos, &vec![0; n], &id, |i| vel[i]);
+        assert!(lean.px.is_empty() && lean.len() == n);
+        let mut full = CellList::new(cl.grid);
+        full.build(&pos, &vec![0; n], &id, |i| vel[i]);
+        let forces = |c: &CellList, virial: bool| {
+            let mut sf = Vec::new();
+            let w = compute(ForceScheme::HalfShell, c, &one, 42, &mut sf, virial, None);
+            (sf, w)
+        };
+        for virial in [false, true] {
+            if reads_soa64(1, ForceScheme::HalfShell, false) {
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| forces(&lean, virial)));
+                assert!(r.is_err(), "the pair loop read a list without its arrays");
+            } else {
+                let (a, b) = (forces(&full, virial), forces(&lean, virial));
+                assert!(a.0.iter().any(|f| *f != DVec3::ZERO));
+                assert!(a == b, "virial {virial}: the lean list gives other forces");
             }
         }
     }

@@ -266,6 +266,7 @@ impl<E: Extension> Simulation<E> {
         let types = field.types();
         let mut cells = CellList::new(grid);
         cells.single = pairs::reads_single(types.len());
+        cells.soa64 = pairs::reads_soa64(types.len(), config.scheme, domain.is_sheared());
         Ok(Self {
             table: DpdTable::new(&field, config.dt),
             inv_mass: types.iter().map(|t| 1.0 / t.mass).collect(),

@@ -441,13 +441,16 @@ impl Geometry {
     /// # Safety
     /// As [`scan_avx512`].
     #[inline(always)]
-    pub(crate) unsafe fn new([px, py, pz]: [&[Real]; 3], q: [Real; 3], sh: &[[Real; 16]; 3], rc2: Real) -> Self {
-        let np = px.len().min(py.len()).min(pz.len());
-        assert!(np < i32::MAX as usize, "too many particles");
+    pub(crate) unsafe fn new(rec: &[crate::cells::Record], q: [Real; 3], sh: &[[Real; 16]; 3], rc2: Real) -> Self {
+        let np = rec.len();
+        assert!(np < (i32::MAX / 8) as usize, "too many particles");
+        let r = rec.as_ptr().cast::<Real>();
         // SAFETY: each table holds 16 entries.
         let load16 = |t: &[Real; 16]| unsafe { (_mm512_loadu_pd(t.as_ptr()), _mm512_loadu_pd(t.as_ptr().add(8))) };
         Self {
-            p: [px.as_ptr(), py.as_ptr(), pz.as_ptr()],
+            // SAFETY: a record holds 8 reals, so offsets 0..3 stay inside the first one (and a
+            // null-length list is never gathered from: every lane is checked against np).
+            p: unsafe { [r, r.add(1), r.add(2)] },
             n: _mm256_set1_epi32(np as i32),
             rc2: _mm512_set1_pd(rc2),
             q: [_mm512_set1_pd(q[0]), _mm512_set1_pd(q[1]), _mm512_set1_pd(q[2])],
@@ -470,9 +473,11 @@ impl Geometry {
         let tag = _mm512_cvtepu32_epi64(_mm256_srli_epi32::<{ TAG_SHIFT as i32 }>(t));
         let zero = _mm512_setzero_pd();
         let mut d = [zero; 3];
+        // Each record is 8 reals: component c of record j is real 8j + c.
+        let j8 = _mm256_slli_epi32::<3>(j);
         for c in 0..3 {
             // SAFETY: only lanes in `tail` are read, and their indices were checked above.
-            let x = unsafe { _mm512_mask_i32gather_pd::<8>(zero, tail, j, self.p[c]) };
+            let x = unsafe { _mm512_mask_i32gather_pd::<8>(zero, tail, j8, self.p[c]) };
             let (lo, hi) = self.sh[c];
             d[c] = _mm512_sub_pd(_mm512_sub_pd(self.q[c], _mm512_permutex2var_pd(lo, tag, hi)), x);
         }
@@ -497,7 +502,7 @@ impl Geometry {
 pub(crate) unsafe fn separations_avx512(
     h: &mut HitArrays,
     (lo, hi): (usize, usize),
-    [px, py, pz]: [&[Real]; 3],
+    rec: &[crate::cells::Record],
     q: [Real; 3],
     sh: &[[Real; 16]; 3],
     rc2: Real,
@@ -512,7 +517,7 @@ pub(crate) unsafe fn separations_avx512(
             .min(h.dz.len())
             .min(h.r2.len());
     assert!(len >= hi + 7, "hit arrays too short");
-    let g = Geometry::new([px, py, pz], q, sh, rc2);
+    let g = Geometry::new(rec, q, sh, rc2);
     let o = h.ptrs();
     let (mut k, mut n) = (lo, lo);
     while k < hi {
