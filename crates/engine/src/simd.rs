@@ -584,8 +584,8 @@ pub(crate) unsafe fn linear_forces_avx512(
     let (rp, last, low) = (rec.as_ptr(), rec.len() - 1, (1u32 << TAG_SHIFT) - 1);
     let mut k = lo;
     while k < hi {
-        // SAFETY: k + 7 < hi + 7 ≤ the asserted lengths; the gathers read only the lanes below
-        // hi, whose indices were checked against vel.len() just before.
+        // SAFETY: k + 7 < hi + 7 ≤ the asserted length of `h.j`; every record index is clamped
+        // to the last record, and those of the lanes below hi were checked against it.
         unsafe {
             let valid = hi - k;
             let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
@@ -593,11 +593,8 @@ pub(crate) unsafe fn linear_forces_avx512(
             let zero = _mm512_setzero_pd();
             // The 8 partners' records (lanes past the tail read the last record; their forces
             // are masked off), transposed into x, y, z, vx, vy, vz, id.
-            let tail_j = _mm256_and_si256(tv, _mm256_set1_epi32(low as i32));
-            assert!(
-                _mm256_mask_cmpge_epu32_mask(tail, tail_j, n) == 0,
-                "hit index out of range"
-            );
+            let j = _mm256_and_si256(tv, _mm256_set1_epi32(low as i32));
+            assert!(_mm256_mask_cmpge_epu32_mask(tail, j, n) == 0, "hit index out of range");
             let mut r = [zero; 8];
             for (l, r) in r.iter_mut().enumerate() {
                 let jl = ((*h.j.get_unchecked(k + l) & low) as usize).min(last);
