@@ -139,7 +139,7 @@ impl CellGrid {
 /// One sorted particle's position (x, y, z), velocity (x, y, z) and id (the bits of the f64 at
 /// index 6 are the id as u64), in one 64-byte aligned cache line: the vectorised force kernel
 /// loads 8 partners' records and transposes them instead of gathering each quantity.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
+#[derive(Debug, Clone, Copy, Default)]
 #[repr(C, align(64))]
 pub(crate) struct Record(pub [Real; 8]);
 
@@ -164,6 +164,7 @@ pub struct CellList {
     pub(crate) rec: Vec<Record>,
     /// Sorted positions as structure of arrays, for the vectorised distance test; each is
     /// padded with [`PAD`] zeros past the last particle so a chunk of lanes may read past a range.
+    /// Empty after a build without [`CellList::soa64`].
     pub px: Vec<Real>,
     /// See [`CellList::px`].
     pub py: Vec<Real>,
@@ -405,16 +406,12 @@ impl CellList {
             .par_chunks_mut(COPY_CHUNK)
             .zip(self.ptype[..n].par_chunks_mut(COPY_CHUNK))
             .enumerate();
-        let (p64, p32) = (
-            [&mut self.px, &mut self.py, &mut self.pz],
-            [&mut self.px32, &mut self.py32, &mut self.pz32],
-        );
         fn first<T: Send>(a: &mut [T], n: usize) -> rayon::slice::ChunksMut<'_, T> {
             a[..n].par_chunks_mut(COPY_CHUNK)
         }
         let (n64, n32) = (if soa64 { n } else { 0 }, if single { n } else { 0 });
-        let [x64, y64, z64] = p64;
-        let [x32, y32, z32] = p32;
+        let [x64, y64, z64] = [&mut self.px, &mut self.py, &mut self.pz];
+        let [x32, y32, z32] = [&mut self.px32, &mut self.py32, &mut self.pz32];
         match (soa64, single) {
             (true, true) => chunks
                 .zip(first(x64, n64).zip(first(y64, n64)).zip(first(z64, n64)))

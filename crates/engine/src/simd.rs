@@ -431,9 +431,9 @@ pub(crate) unsafe fn scan_cell_avx512(
 pub(crate) struct Geometry {
     p: [*const Real; 3],
     n: __m256i,
-    pub(crate) rc2: __m512d,
-    pub(crate) q: [__m512d; 3],
-    pub(crate) sh: [(__m512d, __m512d); 3],
+    rc2: __m512d,
+    q: [__m512d; 3],
+    sh: [(__m512d, __m512d); 3],
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -470,21 +470,37 @@ impl Geometry {
             _mm256_mask_cmpge_epu32_mask(tail, j, self.n) == 0,
             "hit index out of range"
         );
+        let zero = _mm512_setzero_pd();
+        let mut x = [zero; 3];
+        // Each record is 8 reals: component c of record j is real 8j + c.
+        let j8 = _mm256_slli_epi32::<3>(j);
+        for (c, x) in x.iter_mut().enumerate() {
+            // SAFETY: only lanes in `tail` are read, and their indices were checked above.
+            *x = unsafe { _mm512_mask_i32gather_pd::<8>(zero, tail, j8, self.p[c]) };
+        }
+        let (d, pass) = self.separations(t, tail, x);
+        (j, d, pass)
+    }
+
+    /// The dx, dy, dz, r² of 8 tagged candidates `t` (lanes of `tail`) at positions `x`, and the
+    /// lanes that pass the double-precision test 0 < r² < rc²: `dx = (q − sh[tag]) − x`
+    /// component by component, r² as [`r2_512`].
+    ///
+    /// # Safety
+    /// As [`scan_avx512`] (AVX-512 F enabled in the caller).
+    #[inline(always)]
+    pub(crate) unsafe fn separations(&self, t: __m256i, tail: u8, x: [__m512d; 3]) -> ([__m512d; 4], u8) {
         let tag = _mm512_cvtepu32_epi64(_mm256_srli_epi32::<{ TAG_SHIFT as i32 }>(t));
         let zero = _mm512_setzero_pd();
         let mut d = [zero; 3];
-        // Each record is 8 reals: component c of record j is real 8j + c.
-        let j8 = _mm256_slli_epi32::<3>(j);
         for c in 0..3 {
-            // SAFETY: only lanes in `tail` are read, and their indices were checked above.
-            let x = unsafe { _mm512_mask_i32gather_pd::<8>(zero, tail, j8, self.p[c]) };
             let (lo, hi) = self.sh[c];
-            d[c] = _mm512_sub_pd(_mm512_sub_pd(self.q[c], _mm512_permutex2var_pd(lo, tag, hi)), x);
+            d[c] = _mm512_sub_pd(_mm512_sub_pd(self.q[c], _mm512_permutex2var_pd(lo, tag, hi)), x[c]);
         }
         let r2 = r2_512(d[0], d[1], d[2]);
         let pass =
             _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(tail, r2, self.rc2) & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(r2, zero);
-        (j, [d[0], d[1], d[2], r2], pass)
+        ([d[0], d[1], d[2], r2], pass)
     }
 }
 
@@ -538,11 +554,10 @@ pub(crate) unsafe fn separations_avx512(
 /// [`scan_cell_avx512`] on a particle with velocity `vi` and id `idi`, 8 pairs at a time (AVX-512
 /// F, VL and DQ), written to `out[c][k − lo]` (c = x, y, z). The 8 partners' records
 /// ([`crate::cells::Record`]) are loaded whole and transposed into positions, velocities and ids,
-/// instead of 7 gathers; the separation is `(q − sh[tag]) − x_j` component by component and r²
-/// as [`r2_512`], the operations of [`Geometry::hits`] (whose query point, shifts and cutoff
-/// `g` gives). Each lane runs the operations of `DpdLinear::force` and `rng::pair_xi` in their
-/// order (no fused multiply–add), so every force equals the scalar one bit for bit. Lanes past
-/// the last hit load the last record; their forces are masked off.
+/// instead of 7 gathers; the separations are those of [`Geometry::separations`], as in
+/// [`Geometry::hits`]. Each lane runs the operations of `DpdLinear::force` and `rng::pair_xi` in
+/// their order (no fused multiply–add), so every force equals the scalar one bit for bit. Lanes
+/// past the last hit load the last record; their forces are masked off.
 ///
 /// # Safety
 /// Only to be called from a function compiled with AVX-512 F, VL and DQ enabled on a CPU that
@@ -601,16 +616,7 @@ pub(crate) unsafe fn linear_forces_avx512(
                 *r = _mm512_load_pd(rp.add(jl).cast());
             }
             let [xj, yj, zj, vjx, vjy, vjz, idj] = transpose8(r);
-            let tag = _mm512_cvtepu32_epi64(_mm256_srli_epi32::<{ TAG_SHIFT as i32 }>(tv));
-            let mut d = [zero; 3];
-            for (c, x) in [xj, yj, zj].into_iter().enumerate() {
-                let (lo, hi) = g.sh[c];
-                d[c] = _mm512_sub_pd(_mm512_sub_pd(g.q[c], _mm512_permutex2var_pd(lo, tag, hi)), x);
-            }
-            let [dx, dy, dz] = d;
-            let r2 = r2_512(dx, dy, dz);
-            let pass =
-                _mm512_mask_cmp_pd_mask::<_CMP_LT_OQ>(tail, r2, g.rc2) & _mm512_cmp_pd_mask::<_CMP_GT_OQ>(r2, zero);
+            let ([dx, dy, dz, r2], pass) = g.separations(tv, tail, [xj, yj, zj]);
             let xi = if p.noisy {
                 let idj = _mm512_castpd_si512(idj);
                 let lo32 = _mm512_min_epu64(idv64, idj);
