@@ -8,7 +8,9 @@ use crate::{EngineError, ForceField, PeriodicBox, Real, SimConfig};
 
 /// Structure-of-arrays particle storage. All vectors have the same length. The storage order is
 /// fixed for the life of a simulation (the force loop works on a cell-sorted copy), so index `i`
-/// always refers to the same particle and extensions may keep indices.
+/// always refers to the same particle and extensions may keep indices, unless the extension
+/// allows reordering ([`crate::Extension::allows_reordering`]) and [`SimConfig::sort_every`]
+/// is set: then the engine puts the storage into cell order every `sort_every` steps.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct Particles {
     /// Positions, kept inside the box `[0, L)`.

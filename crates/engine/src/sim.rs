@@ -202,6 +202,10 @@ pub struct Simulation<E: Extension = ()> {
     frozen: Vec<bool>,
     body: Vec<DVec3>,
     any_body: bool,
+    /// The storage of the next step while [`Simulation::forces_at`] writes it in cell order
+    /// (with `sort_every = 1`); swapped with `particles` afterwards. Its contents between steps
+    /// mean nothing.
+    spare: Particles,
 }
 
 impl Simulation<()> {
@@ -274,6 +278,7 @@ impl<E: Extension> Simulation<E> {
             frozen: types.iter().map(|t| t.frozen).collect(),
             body: types.iter().map(|t| t.body_force).collect(),
             any_body: types.iter().any(|t| t.body_force != DVec3::ZERO && !t.frozen),
+            spare: Particles::default(),
             cells,
             sforce: Vec::new(),
             config,
@@ -416,12 +421,16 @@ impl<E: Extension> Simulation<E> {
     /// extension that adds no forces) the second half-kick v += h f/m is done in the same pass
     /// as the return of the forces to storage order, and the first particle whose velocity or
     /// force is not finite is returned (the checks of [`Simulation::advance_step`]'s own kick).
+    /// With `reorder` as well, the storage itself is put into the cell order of this evaluation
+    /// in that pass ([`Simulation::return_sorted`]), and the index returned is one of the new
+    /// order.
     fn forces_at(
         &mut self,
         key_step: u64,
         c: Real,
         virial: bool,
         kick: Option<Real>,
+        reorder: bool,
     ) -> Result<(DMat3, Option<usize>), EngineError> {
         let p = &self.particles;
         let (inv_mass, held) = (&self.inv_mass, &self.held);
@@ -464,6 +473,9 @@ impl<E: Extension> Simulation<E> {
                 sforce[k as usize] + body[t]
             }
         };
+        if let (Some(h), true) = (kick, reorder) {
+            return Ok((w, self.return_sorted(h)));
+        }
         let Some(h) = kick else {
             p.force
                 .par_iter_mut()
@@ -491,8 +503,57 @@ impl<E: Extension> Simulation<E> {
         Ok((w, bad))
     }
 
+    /// The return of the sorted forces with the second half-kick, writing the whole storage in
+    /// the cell order of this evaluation: sorted particle k becomes storage index k, with the
+    /// position, type and id of `perm[k]`, its force (plus the body force) and its kicked
+    /// velocity. The same operations as the return to storage order followed by
+    /// [`Simulation::sort_storage`], in one pass that reads the old storage nearly in sequence
+    /// (it was sorted one step before) and writes the new one in sequence. Returns the first new
+    /// index whose velocity or force is not finite.
+    fn return_sorted(&mut self, h: Real) -> Option<usize> {
+        let n = self.particles.len();
+        let (p, new) = (&self.particles, &mut self.spare);
+        new.pos.resize(n, DVec3::ZERO);
+        new.vel.resize(n, DVec3::ZERO);
+        new.force.resize(n, DVec3::ZERO);
+        new.ptype.resize(n, 0);
+        new.id.resize(n, 0);
+        let (perm, sforce) = (&self.cells.perm, &self.sforce);
+        let (body, frozen, any_body) = (&self.body, &self.frozen, self.any_body);
+        let (inv_mass, held) = (&self.inv_mass, &self.held);
+        let bad = new
+            .pos
+            .par_iter_mut()
+            .zip(new.vel.par_iter_mut())
+            .zip(new.force.par_iter_mut())
+            .zip(new.ptype.par_iter_mut())
+            .zip(new.id.par_iter_mut())
+            .enumerate()
+            .with_min_len(MIN_LEN)
+            .filter_map(|(k, ((((x, v), f), t), id))| {
+                if let Some(&a) = perm.get(k + AHEAD) {
+                    let a = a as usize;
+                    shared::prefetch(&p.pos, a);
+                    shared::prefetch(&p.vel, a);
+                }
+                let i = perm[k] as usize;
+                let ti = p.ptype[i];
+                let tu = ti as usize;
+                (*x, *v, *t, *id) = (p.pos[i], p.vel[i], ti, p.id[i]);
+                *f = if !any_body || frozen[tu] {
+                    sforce[k]
+                } else {
+                    sforce[k] + body[tu]
+                };
+                kick_and_check(v, f, held[tu], h * inv_mass[tu]).then_some(k)
+            })
+            .min();
+        std::mem::swap(&mut self.particles, &mut self.spare);
+        bad
+    }
+
     fn compute_forces(&mut self, virial: bool) -> Result<DMat3, EngineError> {
-        let (w, _) = self.forces_at(self.step, 0.0, virial, None)?;
+        let (w, _) = self.forces_at(self.step, 0.0, virial, None, false)?;
         let (mut s, ext) = self.state_mut();
         ext.add_forces(&mut s)?;
         Ok(w)
@@ -572,7 +633,17 @@ impl<E: Extension> Simulation<E> {
         // kick + finiteness check (in the same pass as the forces' return to storage order if
         // the extension adds no forces)
         let fused = !self.ext.adds_forces();
-        let (w, bad) = self.forces_at(step + 1, (self.config.lambda - 0.5) * dt, virial, fused.then_some(h))?;
+        // On the steps that end with the storage put into cell order (`sort_every`), that is
+        // done in the same pass.
+        let every = self.config.sort_every;
+        let reorder = fused && every > 0 && (step + 1).is_multiple_of(every) && self.ext.allows_reordering();
+        let (w, bad) = self.forces_at(
+            step + 1,
+            (self.config.lambda - 0.5) * dt,
+            virial,
+            fused.then_some(h),
+            reorder,
+        )?;
         let bad = if fused {
             bad
         } else {
@@ -602,8 +673,7 @@ impl<E: Extension> Simulation<E> {
             let (mut s, ext) = self.state_mut();
             ext.end_of_step(&mut s).map_err(|e| wrap_ext(e, step))?;
         }
-        let every = self.config.sort_every;
-        if every > 0 && self.step.is_multiple_of(every) && self.ext.allows_reordering() {
+        if every > 0 && !reorder && self.step.is_multiple_of(every) && self.ext.allows_reordering() {
             self.sort_storage();
         }
         Ok(w)
@@ -730,7 +800,68 @@ fn keep_awake(done: &AtomicBool, caller: Option<usize>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::{init, PairParams, TypeSpec};
     use std::sync::atomic::AtomicUsize;
+
+    /// A fluid of two types (the second heavier and pushed by a body force), sorted in storage
+    /// every `every` steps.
+    fn two_type_fluid(every: u64) -> Simulation {
+        let mut config = SimConfig::new(DVec3::splat(6.0), 0.01, 11);
+        config.sort_every = every;
+        let mut field =
+            ForceField::new(vec![TypeSpec::new("a"), TypeSpec::new("b")], PairParams::groot_warren()).unwrap();
+        field.type_mut(1).unwrap().mass = 2.0;
+        field.set_body_force(1, DVec3::new(0.3, -0.1, 0.05)).unwrap();
+        let mut p = init::fluid(&config, &field, &init::FluidSpec::standard(), 5).unwrap();
+        for t in p.ptype.iter_mut().step_by(3) {
+            *t = 1;
+        }
+        Simulation::new(config, field, p).unwrap()
+    }
+
+    /// The storage sort done in the pass that returns the forces ([`Simulation::return_sorted`],
+    /// on the steps that end with a sort) leaves bit for bit the state of the separate return
+    /// followed by [`Simulation::sort_storage`], at 1 and 2 threads, with sorts every step and
+    /// every third step; and the storage really is reordered.
+    #[test]
+    fn sorting_in_the_return_pass_equals_a_separate_sort() {
+        let bits = |v: &[DVec3]| v.iter().map(|x| x.to_array().map(f64::to_bits)).collect::<Vec<_>>();
+        for threads in [1, 2] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                for every in [1, 3] {
+                    let mut fused = two_type_fluid(every);
+                    let mut separate = two_type_fluid(0);
+                    for _ in 0..20 {
+                        fused.step().unwrap();
+                        separate.step().unwrap();
+                        if separate.step.is_multiple_of(every) {
+                            separate.sort_storage();
+                        }
+                    }
+                    let (a, b) = (&fused.particles, &separate.particles);
+                    assert!(
+                        bits(&a.pos) == bits(&b.pos),
+                        "positions differ (every {every}, {threads} threads)"
+                    );
+                    assert!(
+                        bits(&a.vel) == bits(&b.vel),
+                        "velocities differ (every {every}, {threads} threads)"
+                    );
+                    assert!(
+                        bits(&a.force) == bits(&b.force),
+                        "forces differ (every {every}, {threads} threads)"
+                    );
+                    assert!(
+                        a.ptype == b.ptype && a.id == b.id,
+                        "types or ids differ (every {every})"
+                    );
+                    let moved = a.id.iter().enumerate().filter(|(i, &id)| *i as u32 != id).count();
+                    assert!(moved > a.len() / 2, "storage was not reordered ({moved} moved)");
+                }
+            });
+        }
+    }
 
     /// Calls `keep_awake(done, caller)` on a 1-thread pool while one job, which counts its runs,
     /// waits in that thread's deque; returns how often the job had run when `keep_awake`

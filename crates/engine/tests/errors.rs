@@ -89,33 +89,39 @@ fn non_finite_force_is_reported() {
 /// A plain fluid (`()` adds no forces) does its second half-kick in the pass that returns the
 /// forces to storage order; a velocity that overflows there is caught just the same. Two
 /// particles, out of range at the start (no force for the first kick), close to within the
-/// cutoff in one step; with a = 10^308 and m = 10^-10 the second kick ½Δt F/m overflows.
+/// cutoff in one step; with a = 10^308 and m = 10^-10 the second kick ½Δt F/m overflows. Also
+/// with the storage sorted every step, where that pass writes the storage in cell order
+/// (`SimConfig::sort_every = 1`): the error names one of the two particles.
 #[test]
 fn overflow_in_the_second_kick_of_a_plain_fluid_is_reported() {
-    let config = SimConfig::new(DVec3::splat(4.0), 0.01, 1);
-    let mut pp = PairParams::groot_warren();
-    pp.a = 1e308;
-    let mut light = TypeSpec::new("light");
-    light.mass = 1e-10;
-    let field = ForceField::new(vec![light], pp).unwrap();
-    let mut p = Particles::default();
-    p.push(DVec3::new(1.0, 2.0, 2.0), DVec3::new(10.0, 0.0, 0.0), 0, 1);
-    p.push(DVec3::new(2.05, 2.0, 2.0), DVec3::new(-10.0, 0.0, 0.0), 0, 2);
-    let mut sim = Simulation::new(config, field, p).unwrap();
-    assert!(!().adds_forces());
-    let err = sim.step().unwrap_err();
-    let msg = err.to_string();
-    assert!(
-        matches!(
-            err,
-            EngineError::NonFinite {
-                step: 0,
-                quantity: "velocity",
-                ..
-            }
-        ),
-        "{msg}"
-    );
+    for sort_every in [0, 1] {
+        let mut config = SimConfig::new(DVec3::splat(4.0), 0.01, 1);
+        config.sort_every = sort_every;
+        let mut pp = PairParams::groot_warren();
+        pp.a = 1e308;
+        let mut light = TypeSpec::new("light");
+        light.mass = 1e-10;
+        let field = ForceField::new(vec![light], pp).unwrap();
+        let mut p = Particles::default();
+        p.push(DVec3::new(1.0, 2.0, 2.0), DVec3::new(10.0, 0.0, 0.0), 0, 1);
+        p.push(DVec3::new(2.05, 2.0, 2.0), DVec3::new(-10.0, 0.0, 0.0), 0, 2);
+        let mut sim = Simulation::new(config, field, p).unwrap();
+        assert!(!().adds_forces());
+        let err = sim.step().unwrap_err();
+        let msg = err.to_string();
+        assert!(
+            matches!(
+                err,
+                EngineError::NonFinite {
+                    step: 0,
+                    quantity: "velocity",
+                    id: 1 | 2,
+                    ..
+                }
+            ),
+            "sort_every {sort_every}: {msg}"
+        );
+    }
 }
 
 #[test]
