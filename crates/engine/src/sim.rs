@@ -467,11 +467,7 @@ impl<E: Extension> Simulation<E> {
             if let Some(&a) = inv.get(i + AHEAD) {
                 shared::prefetch(sforce, a as usize);
             }
-            if !any_body || frozen[t] {
-                sforce[k as usize]
-            } else {
-                sforce[k as usize] + body[t]
-            }
+            with_body_force(sforce[k as usize], t, body, frozen, any_body)
         };
         if let (Some(h), true) = (kick, reorder) {
             return Ok((w, self.return_sorted(h)));
@@ -540,11 +536,7 @@ impl<E: Extension> Simulation<E> {
                 let ti = p.ptype[i];
                 let tu = ti as usize;
                 (*x, *v, *t, *id) = (p.pos[i], p.vel[i], ti, p.id[i]);
-                *f = if !any_body || frozen[tu] {
-                    sforce[k]
-                } else {
-                    sforce[k] + body[tu]
-                };
+                *f = with_body_force(sforce[k], tu, body, frozen, any_body);
                 kick_and_check(v, f, held[tu], h * inv_mass[tu]).then_some(k)
             })
             .min();
@@ -756,6 +748,17 @@ fn wrap_ext(e: EngineError, step: u64) -> EngineError {
             step,
             message: other.to_string(),
         },
+    }
+}
+
+/// Pair force `f` of a particle of type `t` plus its type's body force (none for a frozen type,
+/// nor when no type has one).
+#[inline(always)]
+fn with_body_force(f: DVec3, t: usize, body: &[DVec3], frozen: &[bool], any_body: bool) -> DVec3 {
+    if !any_body || frozen[t] {
+        f
+    } else {
+        f + body[t]
     }
 }
 
