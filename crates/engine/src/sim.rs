@@ -202,9 +202,9 @@ pub struct Simulation<E: Extension = ()> {
     frozen: Vec<bool>,
     body: Vec<DVec3>,
     any_body: bool,
-    /// The storage of the next step while [`Simulation::forces_at`] writes it in cell order
-    /// (with `sort_every = 1`); swapped with `particles` afterwards. Its contents between steps
-    /// mean nothing.
+    /// The storage of the next step while [`Simulation::return_sorted`] writes it in cell order
+    /// (on the steps that end with a storage sort); swapped with `particles` afterwards. Its
+    /// contents between steps mean nothing; it holds a second copy of the storage's memory.
     spare: Particles,
 }
 
