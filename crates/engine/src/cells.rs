@@ -164,7 +164,9 @@ pub struct CellList {
     pub(crate) rec: Vec<Record>,
     /// Sorted positions as structure of arrays, for the vectorised distance test; each is
     /// padded with [`PAD`] zeros past the last particle so a chunk of lanes may read past a range.
-    /// Empty after a build without [`CellList::soa64`].
+    /// Empty after a build in which the owner skipped them (when the pair loop reads the
+    /// positions only from the records: the AVX-512 one-type half shell without Lees–Edwards
+    /// images).
     pub px: Vec<Real>,
     /// See [`CellList::px`].
     pub py: Vec<Real>,
@@ -238,7 +240,7 @@ impl CellList {
         self.build_prefetching(pos, ptype, id, vel_of, |_| {});
     }
 
-    /// [`Self::build`], calling `prefetch(i)` [`AHEAD`] places before the sorted copy reads
+    /// [`Self::build`], calling `prefetch(i)` 16 places before the sorted copy reads
     /// storage index i, so that the caller can prefetch what `vel_of(i)` will read (the position is
     /// prefetched here). Hints only: the result is that of `build`.
     pub fn build_prefetching(

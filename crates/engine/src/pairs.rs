@@ -602,10 +602,17 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     #[allow(unsafe_code)]
                     unsafe {
                         simd::scan_cell_avx512(pos, rc2_32, (s0, own_end), Some(s0), 0, qs, &mut hits.h.j, ns);
+                        // The query points shifted by the range's shift, recomputed only when
+                        // the shift changes (never inside the grid, where all are zero; p − 0
+                        // is p, so the points are the same either way).
+                        let mut shifted = DVec3::ZERO;
                         for (t, &(a, e, s)) in nb[skip..nnb].iter().enumerate() {
-                            for (k, q) in qs.iter_mut().enumerate() {
-                                let p = cl.position(s0 + k) - s;
-                                *q = [p.x as f32, p.y as f32, p.z as f32];
+                            if s != shifted {
+                                for (k, q) in qs.iter_mut().enumerate() {
+                                    let p = cl.position(s0 + k) - s;
+                                    *q = [p.x as f32, p.y as f32, p.z as f32];
+                                }
+                                shifted = s;
                             }
                             simd::scan_cell_avx512(pos, rc2_32, (a, e), None, t as u32 + 1, qs, &mut hits.h.j, ns);
                         }
