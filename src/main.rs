@@ -42,7 +42,7 @@ enum Command {
         /// Override a key, e.g. --set membrane.vertices=1000 (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         sets: Vec<String>,
-        /// Output directory (default: runs/<scenario name>).
+        /// Output directory (default: the scenario's name, under runs/).
         #[arg(long)]
         out: Option<PathBuf>,
         /// Worker threads (default: all cores).
@@ -90,7 +90,7 @@ enum Command {
         /// Override a key in every run (repeatable).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         sets: Vec<String>,
-        /// Output directory (default: runs/<scenario name>-sweep).
+        /// Output directory (default: the scenario's name followed by -sweep, under runs/).
         #[arg(long, conflicts_with = "emit_slurm")]
         out: Option<PathBuf>,
         /// Points run at once.

@@ -7,7 +7,7 @@
 //! adds in a fixed order, and partial virials are summed in task order.
 //!
 //! With Lees–Edwards boundaries ([`ShearImages`]) the pairs across the y boundary are left out
-//! of both schemes and computed by a separate pass ([`shear_cross`]) in which each particle of
+//! of both schemes and computed by a separate pass (`shear_cross`) in which each particle of
 //! the first and last rows of cells sums its own cross-boundary pairs (so each such pair is
 //! computed twice, once from each side). Its neighbour cells are the row across the boundary,
 //! shifted in x by the offset δ, which is not a multiple of the cell size: four cells per row

@@ -2,7 +2,7 @@
 //! `y = ±R √(1 − s) (c0 + c1 s + c2 s²)`, `s = (x² + z²)/R²`, large diameter in the xz plane.
 //!
 //! The paper prints c0 = 0.0135805, a digit transposition of 0.1035805 (= 2 × Evans–Fung's
-//! a0 = 0.0518 in units of R): see `docs/model.md`. [`EvansFung::healthy`] uses the corrected value.
+//! a0 = 0.0518 in units of R): see `docs/model.md`. [`EvansFung::healthy_um`] uses the corrected value.
 
 use glam::DVec3;
 
