@@ -511,6 +511,18 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
         let rc2 = table.cutoff2_row(0)[0];
         (rc2, prefilter_cutoff2(rc2, g.lengths().max_element()))
     };
+    // The slab-wide part of what the cell-at-a-time scans need (`simd::scan_cell_avx512`):
+    // every range ends at a sorted index ≤ n, so 15 entries of padding and tagged indices
+    // below 2^TAG_SHIFT for n + 16 cover them all.
+    #[cfg(target_arch = "x86_64")]
+    if ONE && run.isa == Isa::Avx512 {
+        let n = cl.len();
+        assert!(
+            [&cl.px32, &cl.py32, &cl.pz32].iter().all(|p| p.len() >= n + 15),
+            "positions not padded"
+        );
+        assert!(n + 16 < 1 << simd::TAG_SHIFT, "too many particles for tagged indices");
+    }
     #[cfg(target_arch = "x86_64")]
     let (mut prev, mut prev_ns, mut pending) = (&mut scratch.prev, &mut scratch.prev_ns, None);
     #[cfg(target_arch = "x86_64")]
@@ -587,6 +599,13 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                         qs.push([p.x as f32, p.y as f32, p.z as f32]);
                         ns.push(k * stride);
                     }
+                    // What the scans below need (`simd::scan_cell_avx512`'s safety section):
+                    // query k's hits start at k · stride and grow by at most m, the candidates
+                    // of all the ranges together, and the last store writes 16 entries past
+                    // them, so they end before (k + 1) · stride = k · stride + m + 16 (checked
+                    // here for the last query); every range ends at a sorted index below the
+                    // slab-wide bounds checked before the loop; the tags are at most 13.
+                    assert!(hits.h.j.len() >= nc * stride, "hit arrays too short");
                     let pos = [&cl.px32[..], &cl.py32, &cl.pz32];
                     // The ranges' shifts by tag (0: the own range, unshifted).
                     for c in 0..3 {

@@ -352,8 +352,10 @@ pub(crate) const TAG_SHIFT: u32 = 28;
 /// candidates j > i0 + k count (the cell's own later particles).
 ///
 /// # Safety
-/// As [`scan_avx512`]. Panics unless the positions hold `e + 15` entries, `e + 16 < 2^TAG_SHIFT`,
-/// `tag < 16`, and each query's hit region has room for `(e − a) + 16` more entries in `out`.
+/// As [`scan_avx512`], and the caller guarantees (checked here only in debug builds, because
+/// this runs for every range of every cell; the caller checks them once per slab and cell) that
+/// the positions hold `e + 15` entries, `e + 16 < 2^TAG_SHIFT`, `tag < 16`, `ns` has an entry
+/// per query, and each query's hit region has room for `(e − a) + 16` more entries in `out`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
@@ -371,13 +373,13 @@ pub(crate) unsafe fn scan_cell_avx512(
         return;
     }
     let end = e + 15;
-    assert!(
+    debug_assert!(
         px.len() >= end && py.len() >= end && pz.len() >= end,
         "positions not padded"
     );
-    assert!(e + 16 < 1 << TAG_SHIFT && tag < 16, "index or tag too large");
-    assert!(ns.len() >= qs.len(), "one hit count per query");
-    assert!(
+    debug_assert!(e + 16 < 1 << TAG_SHIFT && tag < 16, "index or tag too large");
+    debug_assert!(ns.len() >= qs.len(), "one hit count per query");
+    debug_assert!(
         ns[..qs.len()].iter().all(|&n| n + (e - a) + 16 <= out.len()),
         "hit arrays too short"
     );
