@@ -715,6 +715,20 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     vir: &mut DMat3,
 ) {
     let linear = linear.filter(|_| !V);
+    // What `simd::linear_forces_avx512` and `simd::Geometry::new` need, once per cell: particle
+    // k's hits lie in k · stride .. k · stride + stride − 16 (see the scan in `slab_body`), so
+    // 7 entries past them stay inside the hit arrays and inside force buffers of stride + 8;
+    // the records are few enough for 32-bit lane indices.
+    if linear.is_some() && fbuf[0].len() < stride + LANES {
+        for b in fbuf.iter_mut() {
+            b.resize(stride + LANES, 0.0);
+        }
+    }
+    assert!(hits.h.j.len() >= (s1 - s0) * stride, "hit arrays too short");
+    assert!(
+        !cl.rec.is_empty() && cl.rec.len() < (i32::MAX / 8) as usize,
+        "no records, or too many"
+    );
     for (k, i) in (s0..s1).enumerate() {
         let (lo, mut hi) = (k * stride, ns[k]);
         let (rec, q) = (&cl.rec[..], cl.position(i).to_array());
@@ -729,11 +743,6 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
             hit_forces::<K, V, ONE>(cl, row, key, i, hits, lo..hi, win, vir);
             continue;
         };
-        if fbuf[0].len() < hi - lo + LANES {
-            for b in fbuf.iter_mut() {
-                b.resize(hi - lo + LANES, 0.0);
-            }
-        }
         // SAFETY: only called from the `slab_avx512` build, which enables AVX-512 F, VL and DQ,
         // all three checked at run time (`Isa::best`).
         #[allow(unsafe_code)]

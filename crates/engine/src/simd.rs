@@ -60,6 +60,7 @@ pub(crate) struct HitArrays {
 
 impl HitArrays {
     /// Makes every array at least `m` long.
+    #[inline]
     pub fn reserve(&mut self, m: usize) {
         if self.j.len() < m {
             self.j.resize(m, 0);
@@ -441,11 +442,13 @@ pub(crate) struct Geometry {
 #[cfg(target_arch = "x86_64")]
 impl Geometry {
     /// # Safety
-    /// As [`scan_avx512`].
+    /// As [`scan_avx512`], and the caller guarantees that `rec` is shorter than `i32::MAX / 8`
+    /// (checked here only in debug builds).
     #[inline(always)]
     pub(crate) unsafe fn new(rec: &[crate::cells::Record], q: [Real; 3], sh: &[[Real; 16]; 3], rc2: Real) -> Self {
         let np = rec.len();
-        assert!(np < (i32::MAX / 8) as usize, "too many particles");
+        // Checked once per cell by the caller (this runs for every particle).
+        debug_assert!(np < (i32::MAX / 8) as usize, "too many particles");
         let r = rec.as_ptr().cast::<Real>();
         // SAFETY: each table holds 16 entries.
         let load16 = |t: &[Real; 16]| unsafe { (_mm512_loadu_pd(t.as_ptr()), _mm512_loadu_pd(t.as_ptr().add(8))) };
@@ -563,8 +566,10 @@ pub(crate) unsafe fn separations_avx512(
 ///
 /// # Safety
 /// Only to be called from a function compiled with AVX-512 F, VL and DQ enabled on a CPU that
-/// has them. Panics unless `h.j` holds `hi + 7` entries, each of `out` `hi − lo + 7`, and every
-/// untagged index is below `rec.len()`.
+/// has them. The caller guarantees (checked here only in debug builds, because this runs for
+/// every particle) that `h.j` holds `hi + 7` entries, each of `out` `hi − lo + 7`, and `rec` is
+/// not empty and shorter than `i32::MAX`. Panics unless every untagged index is below
+/// `rec.len()`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
@@ -583,11 +588,12 @@ pub(crate) unsafe fn linear_forces_avx512(
     if lo >= hi {
         return;
     }
-    assert!(
+    // Checked once per cell by the caller (this runs for every particle).
+    debug_assert!(
         h.j.len() >= hi + 7 && out.iter().all(|o| o.len() >= hi - lo + 7),
         "force arrays too short"
     );
-    assert!(!rec.is_empty() && rec.len() < i32::MAX as usize, "no records");
+    debug_assert!(!rec.is_empty() && rec.len() < i32::MAX as usize, "no records");
     let n = _mm256_set1_epi32(rec.len() as i32);
     let (one, inv_rc, a, gamma, sigma_dt) = (
         _mm512_set1_pd(1.0),
