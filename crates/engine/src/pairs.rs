@@ -716,9 +716,9 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
 ) {
     let linear = linear.filter(|_| !V);
     // What `simd::linear_forces_avx512` and `simd::Geometry::new` need, once per cell: particle
-    // k's hits lie in k · stride .. k · stride + stride − 16 (see the scan in `slab_body`), so
-    // 7 entries past them stay inside the hit arrays and inside force buffers of stride + 8;
-    // the records are few enough for 32-bit lane indices.
+    // k's hits lie in k · stride .. k · stride + stride − 16 (see the scan in `slab_body`;
+    // asserted per particle below), so 7 entries past them stay inside the hit arrays and
+    // inside force buffers of stride + 8; the records are few enough for 32-bit lane indices.
     if linear.is_some() && fbuf[0].len() < stride + LANES {
         for b in fbuf.iter_mut() {
             b.resize(stride + LANES, 0.0);
@@ -731,6 +731,8 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     );
     for (k, i) in (s0..s1).enumerate() {
         let (lo, mut hi) = (k * stride, ns[k]);
+        // The one bound the cell's checks above rest on (one compare per particle).
+        assert!(lo <= hi && hi + 2 * LANES <= lo + stride, "hits outside their region");
         let (rec, q) = (&cl.rec[..], cl.position(i).to_array());
         if linear.is_none() {
             // SAFETY: only called from the `slab_avx512` build (AVX-512 F, VL, DQ checked at
