@@ -240,9 +240,9 @@ impl CellList {
         self.build_prefetching(pos, ptype, id, vel_of, |_| {});
     }
 
-    /// [`Self::build`], calling `prefetch(i)` 16 places before the sorted copy reads
-    /// storage index i, so that the caller can prefetch what `vel_of(i)` will read (the position is
-    /// prefetched here). Hints only: the result is that of `build`.
+    /// [`Self::build`], calling `prefetch(i)` a fixed distance (`AHEAD` places) before the sorted
+    /// copy reads storage index i, so that the caller can prefetch what `vel_of(i)` will read (the
+    /// position is prefetched here). Hints only: the result is that of `build`.
     pub fn build_prefetching(
         &mut self,
         pos: &[DVec3],
