@@ -71,6 +71,9 @@ pub(crate) const LANES: usize = 8;
 /// The bits of a tagged hit index that hold the sorted index ([`simd::scan_cell_avx512`]).
 #[cfg(target_arch = "x86_64")]
 const TAG_LOW: u32 = (1 << simd::TAG_SHIFT) - 1;
+/// The bits of a cell stream's hit that hold the sorted index ([`simd::stream_cell_hits_avx512`]).
+#[cfg(target_arch = "x86_64")]
+const SLOT_LOW: u32 = (1 << simd::SLOT_SHIFT) - 1;
 const _: () = assert!(crate::cells::PAD + 1 >= LANES);
 
 /// The candidates of one particle i that passed the distance test: `h.j[..n]` (sorted indices)
@@ -527,6 +530,10 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     let (mut prev, mut prev_ns, mut pending) = (&mut scratch.prev, &mut scratch.prev_ns, None);
     #[cfg(target_arch = "x86_64")]
     let fbuf = &mut scratch.fbuf;
+    // A cell of up to 8 particles has its forces evaluated as one stream of hits when the sorted
+    // indices leave room for the slot bits (`simd::SLOT_SHIFT`).
+    #[cfg(target_arch = "x86_64")]
+    let stream = (&mut scratch.stream, cl.len() + 16 < 1 << simd::SLOT_SHIFT);
     // The shifts of this cell's ranges and the previous cell's, swapped by reference below
     // (each is 384 bytes). Only the entries of the tags in use are set.
     #[cfg(target_arch = "x86_64")]
@@ -640,7 +647,15 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     // its hits are read well after they were stored (a load right after the
                     // compressing stores cannot be forwarded from them and stalls).
                     if let Some(p) = pending {
-                        cell_forces::<K, V, ONE>(cl, kern, (prev, prev_ns, prev_sh), p, fbuf, win, &mut vir);
+                        cell_forces::<K, V, ONE>(
+                            cl,
+                            kern,
+                            (prev, prev_ns, prev_sh),
+                            p,
+                            (fbuf, &mut *stream.0, stream.1),
+                            win,
+                            &mut vir,
+                        );
                     }
                     std::mem::swap(&mut hits, &mut prev);
                     std::mem::swap(&mut ns, &mut prev_ns);
@@ -666,7 +681,15 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     }
     #[cfg(target_arch = "x86_64")]
     if let Some(p) = pending {
-        cell_forces::<K, V, ONE>(cl, kern, (prev, prev_ns, prev_sh), p, fbuf, win, &mut vir);
+        cell_forces::<K, V, ONE>(
+            cl,
+            kern,
+            (prev, prev_ns, prev_sh),
+            p,
+            (fbuf, &mut *stream.0, stream.1),
+            win,
+            &mut vir,
+        );
     }
     SCRATCH.with(|c| c.replace(scratch));
     vir
@@ -689,6 +712,8 @@ struct Scratch {
     prev_ns: Vec<usize>,
     #[cfg(target_arch = "x86_64")]
     fbuf: [Vec<Real>; 3],
+    #[cfg(target_arch = "x86_64")]
+    stream: Vec<u32>,
 }
 
 thread_local! {
@@ -710,11 +735,22 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     (row, key, linear, rc2): (&[K], u64, Option<crate::kernel::LinearParams>, Real),
     (hits, ns, sh): (&mut Hits, &[usize], &[[Real; 16]; 3]),
     (s0, s1, stride): (usize, usize, usize),
-    fbuf: &mut [Vec<Real>; 3],
+    (fbuf, stream, streams): (&mut [Vec<Real>; 3], &mut Vec<u32>, bool),
     win: &mut Win<'_>,
     vir: &mut DMat3,
 ) {
     let linear = linear.filter(|_| !V);
+    if let (Some(lp), true) = (linear, streams && s1 - s0 <= 8) {
+        cell_stream_forces(
+            cl,
+            (key, lp, rc2),
+            (hits, ns, sh),
+            (s0, s1, stride),
+            (fbuf, stream),
+            win,
+        );
+        return;
+    }
     // What `simd::linear_forces_avx512` and `simd::Geometry::new` need, once per cell: particle
     // k's hits lie in k · stride .. k · stride + stride − 16 (see the scan in `slab_body`;
     // asserted per particle below), so 7 entries past them stay inside the hit arrays and
@@ -770,6 +806,68 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
             win.add((j & TAG_LOW) as usize, -f);
         }
         win.add(i, fi);
+    }
+}
+
+/// [`cell_forces`] for a cell of up to 8 particles with the linear kernel and no virial: the
+/// particles' hits are concatenated into one stream ([`simd::stream_cell_hits_avx512`]) and
+/// evaluated 8 pairs at a time across particles ([`simd::linear_forces_cell_avx512`]), so a
+/// cell runs ⌈hits / 8⌉ blocks instead of a partial block or two per particle. The forces are
+/// then summed particle by particle as in [`cell_forces`]: each −f to its j at once, the sum to
+/// i after its hits, in the same order, so the results are the same bits.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn cell_stream_forces(
+    cl: &CellList,
+    (key, lp, rc2): (u64, crate::kernel::LinearParams, Real),
+    (hits, ns, sh): (&mut Hits, &[usize], &[[Real; 16]; 3]),
+    (s0, s1, stride): (usize, usize, usize),
+    (fbuf, stream): (&mut [Vec<Real>; 3], &mut Vec<u32>),
+    win: &mut Win<'_>,
+) {
+    let nc = s1 - s0;
+    // The stream holds at most nc · (stride − 16) hits, and its copy writes 15 entries past
+    // them; the forces' buffers are read 7 past them.
+    let room = nc * stride;
+    if stream.len() < room {
+        stream.resize(room, 0);
+    }
+    if fbuf[0].len() < room + LANES {
+        for b in fbuf.iter_mut() {
+            b.resize(room + LANES, 0.0);
+        }
+    }
+    assert!(ns.len() == nc && hits.h.j.len() >= room, "hit arrays too short");
+    for (k, &end) in ns.iter().enumerate() {
+        // The one bound the copy rests on (one compare per particle).
+        assert!(
+            k * stride <= end && end + 2 * LANES <= (k + 1) * stride,
+            "hits outside their region"
+        );
+    }
+    assert!(cl.rec.len() < (i32::MAX / 8) as usize, "too many records");
+    // SAFETY: only called from the `slab_avx512` build (AVX-512 F, VL, DQ checked at run time by
+    // `Isa::best`); the regions, the stream's and the buffers' room and the record count are
+    // asserted above, and the sorted indices are below 2^SLOT_SHIFT (checked by the caller).
+    #[allow(unsafe_code)]
+    unsafe {
+        let len = simd::stream_cell_hits_avx512(&hits.h.j, ns, stride, stream);
+        let g = simd::Geometry::new(&cl.rec, cl.position(s0).to_array(), sh, rc2);
+        let out = fbuf.each_mut().map(|b| &mut b[..]);
+        simd::linear_forces_cell_avx512((stream, len), &cl.rec, (s0, nc), key, lp, g, out);
+        let [fx, fy, fz] = fbuf.each_ref().map(|b| &b[..len]);
+        let mut a = 0;
+        for (k, &end) in ns.iter().enumerate() {
+            let e = a + (end - k * stride);
+            let mut fi = DVec3::ZERO;
+            for (((&t, &fx), &fy), &fz) in stream[a..e].iter().zip(&fx[a..e]).zip(&fy[a..e]).zip(&fz[a..e]) {
+                let f = DVec3::new(fx, fy, fz);
+                fi += f;
+                win.add((t & SLOT_LOW) as usize, -f);
+            }
+            win.add(s0 + k, fi);
+            a = e;
+        }
     }
 }
 
@@ -1082,12 +1180,15 @@ mod tests {
     /// The AVX2 and AVX-512 distance tests and the portable one give the same forces and virials
     /// bit for bit, for one and two types, at kBT = 1 and 0 (no noise), both schemes and the
     /// Lees–Edwards pass. With one type the AVX-512 build scans a cell at a time and evaluates
-    /// the linear kernel 8 pairs at a time. A build the test machine's CPU cannot run is not
-    /// compared, and the test says so.
+    /// the linear kernel 8 pairs at a time: as one stream of hits for the cells of up to 8
+    /// particles, particle by particle for the larger ones (the setup has both kinds). A build
+    /// the test machine's CPU cannot run is not compared, and the test says so.
     #[test]
     fn simd_and_portable_loops_agree_bit_for_bit() {
         let (cl, one, two) = setup(1.0);
         let (_, cold, _) = setup(0.0);
+        let sizes: Vec<usize> = (0..cl.grid.ncells()).map(|c| cl.range(c).1 - cl.range(c).0).collect();
+        assert!(sizes.iter().any(|&m| m > 8) && sizes.iter().filter(|&&m| (1..=8).contains(&m)).count() > 50);
         let portable = Run {
             key: 42,
             isa: Isa::Portable,

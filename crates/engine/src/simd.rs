@@ -495,12 +495,29 @@ impl Geometry {
     /// As [`scan_avx512`] (AVX-512 F enabled in the caller).
     #[inline(always)]
     pub(crate) unsafe fn separations(&self, t: __m256i, tail: u8, x: [__m512d; 3]) -> ([__m512d; 4], u8) {
+        // SAFETY: as this function's.
+        unsafe { self.separations_from(self.q, t, tail, x) }
+    }
+
+    /// [`Geometry::separations`] with a query point per lane (`q`) instead of the one of
+    /// [`Geometry::new`].
+    ///
+    /// # Safety
+    /// As [`scan_avx512`] (AVX-512 F enabled in the caller).
+    #[inline(always)]
+    pub(crate) unsafe fn separations_from(
+        &self,
+        q: [__m512d; 3],
+        t: __m256i,
+        tail: u8,
+        x: [__m512d; 3],
+    ) -> ([__m512d; 4], u8) {
         let tag = _mm512_cvtepu32_epi64(_mm256_srli_epi32::<{ TAG_SHIFT as i32 }>(t));
         let zero = _mm512_setzero_pd();
         let mut d = [zero; 3];
         for c in 0..3 {
             let (lo, hi) = self.sh[c];
-            d[c] = _mm512_sub_pd(_mm512_sub_pd(self.q[c], _mm512_permutex2var_pd(lo, tag, hi)), x[c]);
+            d[c] = _mm512_sub_pd(_mm512_sub_pd(q[c], _mm512_permutex2var_pd(lo, tag, hi)), x[c]);
         }
         let r2 = r2_512(d[0], d[1], d[2]);
         let pass =
@@ -555,14 +572,130 @@ pub(crate) unsafe fn separations_avx512(
     n
 }
 
+/// The constants of [`crate::kernel::DpdLinear`]'s force in vector registers, for
+/// [`linear_lanes`].
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+struct LinearConsts {
+    key: __m512i,
+    inv_rc: __m512d,
+    a: __m512d,
+    gamma: __m512d,
+    sigma_dt: __m512d,
+    noisy: bool,
+}
+
+#[cfg(target_arch = "x86_64")]
+impl LinearConsts {
+    /// # Safety
+    /// As [`scan_avx512`] (AVX-512 F enabled in the caller).
+    #[inline(always)]
+    unsafe fn new(key: u64, p: crate::kernel::LinearParams) -> Self {
+        Self {
+            key: _mm512_set1_epi64(key as i64),
+            inv_rc: _mm512_set1_pd(p.inv_rc),
+            a: _mm512_set1_pd(p.a),
+            gamma: _mm512_set1_pd(p.gamma),
+            sigma_dt: _mm512_set1_pd(p.sigma_dt),
+            noisy: p.noisy,
+        }
+    }
+}
+
+/// The pair forces of 8 lanes: separations `d` (dx, dy, dz, r²), velocity differences `dv`
+/// (vi − vj), the ids of i and j (as u64 lanes); lanes outside `pass` get +0.0. Each lane runs
+/// the operations of `DpdLinear::force` and `rng::pair_xi` in their order (no fused
+/// multiply–add), so every force equals the scalar one bit for bit.
+///
+/// # Safety
+/// As [`scan_avx512`] (AVX-512 F and DQ enabled in the caller).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn linear_lanes(
+    c: &LinearConsts,
+    [dx, dy, dz, r2]: [__m512d; 4],
+    pass: u8,
+    [dvx, dvy, dvz]: [__m512d; 3],
+    idi: __m512i,
+    idj: __m512i,
+) -> [__m512d; 3] {
+    use crate::rng::{GOLDEN, MIX, SQRT3, XI_SCALE};
+    let (zero, one) = (_mm512_setzero_pd(), _mm512_set1_pd(1.0));
+    let xi = if c.noisy {
+        let lo32 = _mm512_min_epu64(idi, idj);
+        let hi32 = _mm512_max_epu64(idi, idj);
+        let pos = _mm512_or_si512(_mm512_slli_epi64::<32>(lo32), hi32);
+        let mut z = _mm512_add_epi64(c.key, _mm512_mullo_epi64(pos, _mm512_set1_epi64(GOLDEN as i64)));
+        z = _mm512_mullo_epi64(
+            _mm512_xor_si512(z, _mm512_srli_epi64::<30>(z)),
+            _mm512_set1_epi64(MIX[0] as i64),
+        );
+        z = _mm512_mullo_epi64(
+            _mm512_xor_si512(z, _mm512_srli_epi64::<27>(z)),
+            _mm512_set1_epi64(MIX[1] as i64),
+        );
+        z = _mm512_xor_si512(z, _mm512_srli_epi64::<31>(z));
+        let u = _mm512_cvtepu64_pd(_mm512_srli_epi64::<11>(z));
+        _mm512_sub_pd(_mm512_mul_pd(u, _mm512_set1_pd(XI_SCALE)), _mm512_set1_pd(SQRT3))
+    } else {
+        zero
+    };
+    let r = _mm512_sqrt_pd(r2);
+    let inv_r = _mm512_div_pd(one, r);
+    let w = _mm512_sub_pd(one, _mm512_mul_pd(r, c.inv_rc));
+    let dot = _mm512_add_pd(
+        _mm512_add_pd(_mm512_mul_pd(dx, dvx), _mm512_mul_pd(dy, dvy)),
+        _mm512_mul_pd(dz, dvz),
+    );
+    let edv = _mm512_mul_pd(dot, inv_r);
+    let inner = _mm512_add_pd(
+        _mm512_sub_pd(c.a, _mm512_mul_pd(_mm512_mul_pd(c.gamma, w), edv)),
+        _mm512_mul_pd(c.sigma_dt, xi),
+    );
+    let s = _mm512_mul_pd(_mm512_mul_pd(w, inner), inv_r);
+    // The prefilter's candidates that are not hits get a force of exactly +0.0, which changes
+    // no sum: i's sum starts at +0.0 and so is never −0.0, and j gets −0.0.
+    [
+        _mm512_maskz_mov_pd(pass, _mm512_mul_pd(dx, s)),
+        _mm512_maskz_mov_pd(pass, _mm512_mul_pd(dy, s)),
+        _mm512_maskz_mov_pd(pass, _mm512_mul_pd(dz, s)),
+    ]
+}
+
+/// The records of 8 partners, transposed into x, y, z, vx, vy, vz, id: lane l reads record
+/// `index(l)`, clamped to the last record. `j` holds the same indices, checked for the lanes of
+/// `tail` (the others, past the last hit, have their forces masked off).
+///
+/// # Safety
+/// As [`scan_avx512`] (AVX-512 F enabled in the caller); `rec` is not empty and shorter than
+/// `i32::MAX`. Panics unless the lanes of `tail` hold indices below `rec.len()`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+unsafe fn partner_records(
+    rec: &[crate::cells::Record],
+    j: __m256i,
+    tail: u8,
+    index: impl Fn(usize) -> usize,
+) -> [__m512d; 7] {
+    let n = _mm256_set1_epi32(rec.len() as i32);
+    assert!(_mm256_mask_cmpge_epu32_mask(tail, j, n) == 0, "hit index out of range");
+    let (rp, last) = (rec.as_ptr(), rec.len() - 1);
+    let mut r = [_mm512_setzero_pd(); 8];
+    for (l, r) in r.iter_mut().enumerate() {
+        // SAFETY: the index is clamped to the last record; records are 64-byte aligned.
+        *r = unsafe { _mm512_load_pd(rp.add(index(l).min(last)).cast()) };
+    }
+    // SAFETY: as this function's.
+    unsafe { transpose8(r) }
+}
+
 /// The forces of [`crate::kernel::DpdLinear`] for the tagged hits `h.j[lo..hi]` of
 /// [`scan_cell_avx512`] on a particle with velocity `vi` and id `idi`, 8 pairs at a time (AVX-512
 /// F, VL and DQ), written to `out[c][k − lo]` (c = x, y, z). The 8 partners' records
 /// ([`crate::cells::Record`]) are loaded whole and transposed into positions, velocities and ids,
 /// instead of 7 gathers; the separations are those of [`Geometry::separations`], as in
-/// [`Geometry::hits`]. Each lane runs the operations of `DpdLinear::force` and `rng::pair_xi` in
-/// their order (no fused multiply–add), so every force equals the scalar one bit for bit. Lanes
-/// past the last hit load the last record; their forces are masked off.
+/// [`Geometry::hits`], and the forces those of [`linear_lanes`]. Lanes past the last hit load the
+/// last record; their forces are masked off.
 ///
 /// # Safety
 /// Only to be called from a function compiled with AVX-512 F, VL and DQ enabled on a CPU that
@@ -584,7 +717,6 @@ pub(crate) unsafe fn linear_forces_avx512(
     g: Geometry,
     out: [&mut [Real]; 3],
 ) {
-    use crate::rng::{GOLDEN, MIX, SQRT3, XI_SCALE};
     if lo >= hi {
         return;
     }
@@ -594,89 +726,143 @@ pub(crate) unsafe fn linear_forces_avx512(
         "force arrays too short"
     );
     debug_assert!(!rec.is_empty() && rec.len() < i32::MAX as usize, "no records");
-    let n = _mm256_set1_epi32(rec.len() as i32);
-    let (one, inv_rc, a, gamma, sigma_dt) = (
-        _mm512_set1_pd(1.0),
-        _mm512_set1_pd(p.inv_rc),
-        _mm512_set1_pd(p.a),
-        _mm512_set1_pd(p.gamma),
-        _mm512_set1_pd(p.sigma_dt),
-    );
+    // SAFETY: as this function's.
+    let c = unsafe { LinearConsts::new(key, p) };
     let (vix, viy, viz) = (_mm512_set1_pd(vi.x), _mm512_set1_pd(vi.y), _mm512_set1_pd(vi.z));
     let idv64 = _mm512_set1_epi64(idi as i64);
-    let (rp, last, low) = (rec.as_ptr(), rec.len() - 1, (1u32 << TAG_SHIFT) - 1);
+    let low = (1u32 << TAG_SHIFT) - 1;
     let mut k = lo;
     while k < hi {
-        // SAFETY: k + 7 < hi + 7 ≤ the asserted length of `h.j`; every record index is clamped
-        // to the last record, and those of the lanes below hi were checked against it.
+        // SAFETY: k + 7 < hi + 7 ≤ the asserted length of `h.j`; the records' loads are checked
+        // by `partner_records`.
         unsafe {
             let valid = hi - k;
             let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
             let tv = _mm256_loadu_si256(h.j.as_ptr().add(k).cast());
-            let zero = _mm512_setzero_pd();
-            // The 8 partners' records (lanes past the tail read the last record; their forces
-            // are masked off), transposed into x, y, z, vx, vy, vz, id.
             let j = _mm256_and_si256(tv, _mm256_set1_epi32(low as i32));
-            assert!(_mm256_mask_cmpge_epu32_mask(tail, j, n) == 0, "hit index out of range");
-            let mut r = [zero; 8];
-            for (l, r) in r.iter_mut().enumerate() {
-                let jl = ((*h.j.get_unchecked(k + l) & low) as usize).min(last);
-                *r = _mm512_load_pd(rp.add(jl).cast());
-            }
-            let [xj, yj, zj, vjx, vjy, vjz, idj] = transpose8(r);
-            let ([dx, dy, dz, r2], pass) = g.separations(tv, tail, [xj, yj, zj]);
-            let xi = if p.noisy {
-                let idj = _mm512_castpd_si512(idj);
-                let lo32 = _mm512_min_epu64(idv64, idj);
-                let hi32 = _mm512_max_epu64(idv64, idj);
-                let pos = _mm512_or_si512(_mm512_slli_epi64::<32>(lo32), hi32);
-                let mut z = _mm512_add_epi64(
-                    _mm512_set1_epi64(key as i64),
-                    _mm512_mullo_epi64(pos, _mm512_set1_epi64(GOLDEN as i64)),
-                );
-                z = _mm512_mullo_epi64(
-                    _mm512_xor_si512(z, _mm512_srli_epi64::<30>(z)),
-                    _mm512_set1_epi64(MIX[0] as i64),
-                );
-                z = _mm512_mullo_epi64(
-                    _mm512_xor_si512(z, _mm512_srli_epi64::<27>(z)),
-                    _mm512_set1_epi64(MIX[1] as i64),
-                );
-                z = _mm512_xor_si512(z, _mm512_srli_epi64::<31>(z));
-                let u = _mm512_cvtepu64_pd(_mm512_srli_epi64::<11>(z));
-                _mm512_sub_pd(_mm512_mul_pd(u, _mm512_set1_pd(XI_SCALE)), _mm512_set1_pd(SQRT3))
-            } else {
-                zero
-            };
-            let r = _mm512_sqrt_pd(r2);
-            let inv_r = _mm512_div_pd(one, r);
-            let w = _mm512_sub_pd(one, _mm512_mul_pd(r, inv_rc));
-            let (dvx, dvy, dvz) = (
+            let tagged = h.j.as_ptr().add(k);
+            let [xj, yj, zj, vjx, vjy, vjz, idj] =
+                partner_records(rec, j, tail, |l| (tagged.add(l).read_volatile() & low) as usize);
+            let (d, pass) = g.separations(tv, tail, [xj, yj, zj]);
+            let dv = [
                 _mm512_sub_pd(vix, vjx),
                 _mm512_sub_pd(viy, vjy),
                 _mm512_sub_pd(viz, vjz),
-            );
-            let dot = _mm512_add_pd(
-                _mm512_add_pd(_mm512_mul_pd(dx, dvx), _mm512_mul_pd(dy, dvy)),
-                _mm512_mul_pd(dz, dvz),
-            );
-            let edv = _mm512_mul_pd(dot, inv_r);
-            let inner = _mm512_add_pd(
-                _mm512_sub_pd(a, _mm512_mul_pd(_mm512_mul_pd(gamma, w), edv)),
-                _mm512_mul_pd(sigma_dt, xi),
-            );
-            let s = _mm512_mul_pd(_mm512_mul_pd(w, inner), inv_r);
-            // The prefilter's candidates that are not hits get a force of exactly +0.0, which
-            // changes no sum: i's sum starts at +0.0 and so is never −0.0, and j gets −0.0.
-            let (fx, fy, fz) = (
-                _mm512_maskz_mov_pd(pass, _mm512_mul_pd(dx, s)),
-                _mm512_maskz_mov_pd(pass, _mm512_mul_pd(dy, s)),
-                _mm512_maskz_mov_pd(pass, _mm512_mul_pd(dz, s)),
-            );
+            ];
+            let f = linear_lanes(&c, d, pass, dv, idv64, _mm512_castpd_si512(idj));
             let o = k - lo;
-            _mm512_storeu_pd(out[0].as_mut_ptr().add(o), fx);
-            _mm512_storeu_pd(out[1].as_mut_ptr().add(o), fy);
-            _mm512_storeu_pd(out[2].as_mut_ptr().add(o), fz);
+            for (out, f) in out.iter().zip(f) {
+                _mm512_storeu_pd(out.as_ptr().cast_mut().add(o), f);
+            }
+        }
+        k += 8;
+    }
+}
+
+/// Bits of a cell stream's hit ([`stream_cell_hits_avx512`]) that hold the query's place in its
+/// cell (the slot, below 8), between the sorted index (below 2^SLOT_SHIFT) and the range's tag.
+#[cfg(target_arch = "x86_64")]
+pub(crate) const SLOT_SHIFT: u32 = 25;
+
+/// Concatenates the hits of a cell's `nc ≤ 8` queries ([`scan_cell_avx512`]: query k's are
+/// `hits[k · stride .. ns[k]]`) into `out` from 0, in query order, each with its slot k in the
+/// bits from [`SLOT_SHIFT`]; returns their number. Writes up to 15 entries past the end.
+///
+/// # Safety
+/// As [`scan_avx512`] (AVX-512 F enabled in the caller). The caller guarantees that every
+/// query's region ends 16 entries before the next region's start (`ns[k] + 16 ≤ (k + 1) ·
+/// stride`), `hits` holds `nc · stride` entries, `out` holds their total + 16, and the sorted
+/// indices are below 2^SLOT_SHIFT (checked only in debug builds).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) unsafe fn stream_cell_hits_avx512(hits: &[u32], ns: &[usize], stride: usize, out: &mut [u32]) -> usize {
+    let nc = ns.len();
+    debug_assert!(
+        nc <= 8 && hits.len() >= nc * stride,
+        "cell too large, or hits too short"
+    );
+    let (src, dst) = (hits.as_ptr(), out.as_mut_ptr());
+    let mut len = 0;
+    for (k, &end) in ns.iter().enumerate() {
+        let slot = _mm512_set1_epi32(((k as u32) << SLOT_SHIFT) as i32);
+        let mut a = k * stride;
+        debug_assert!(end + 16 <= (k + 1) * stride && len + (end - a) + 16 <= out.len());
+        while a < end {
+            // SAFETY: a + 15 < end + 16 ≤ this region's end (the caller's guarantee); the store
+            // ends at most 15 entries past the stream's new end, inside `out`.
+            unsafe {
+                let t = _mm512_loadu_si512(src.add(a).cast());
+                _mm512_storeu_si512(dst.add(len).cast(), _mm512_or_si512(t, slot));
+            }
+            let m = (end - a).min(16);
+            len += m;
+            a += m;
+        }
+    }
+    len
+}
+
+/// The forces of [`crate::kernel::DpdLinear`] for a cell's stream of hits `stream[..len]`
+/// ([`stream_cell_hits_avx512`]), 8 pairs at a time whatever query they belong to: each lane
+/// takes its query's position, velocity and id from the cell's records (sorted particles s0 ..
+/// s0 + nc, nc ≤ 8) by its slot, and then runs the operations of [`linear_forces_avx512`] (so the
+/// same bits per pair). Written to `out[c][k]` (c = x, y, z).
+///
+/// # Safety
+/// As [`linear_forces_avx512`], with `stream` and each of `out` holding `len + 7` entries and
+/// s0 + nc ≤ `rec.len()` (checked only in debug builds); panics unless every sorted index in the
+/// stream is below `rec.len()`.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn linear_forces_cell_avx512(
+    (stream, len): (&[u32], usize),
+    rec: &[crate::cells::Record],
+    (s0, nc): (usize, usize),
+    key: u64,
+    p: crate::kernel::LinearParams,
+    g: Geometry,
+    out: [&mut [Real]; 3],
+) {
+    if len == 0 {
+        return;
+    }
+    debug_assert!(stream.len() >= len + 7 && out.iter().all(|o| o.len() >= len + 7));
+    debug_assert!((1..=8).contains(&nc) && s0 + nc <= rec.len() && rec.len() < i32::MAX as usize);
+    // SAFETY: as this function's.
+    let (c, [qx, qy, qz, vix, viy, viz, idi]) = unsafe {
+        let own = _mm256_add_epi32(_mm256_set1_epi32(s0 as i32), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));
+        let tail = (1u16 << nc).wrapping_sub(1) as u8;
+        (LinearConsts::new(key, p), partner_records(rec, own, tail, |l| s0 + l))
+    };
+    let idi = _mm512_castpd_si512(idi);
+    let low = (1u32 << SLOT_SHIFT) - 1;
+    let (lowv, slots) = (_mm256_set1_epi32(low as i32), _mm256_set1_epi32(7));
+    let mut k = 0;
+    while k < len {
+        // SAFETY: k + 7 < len + 7 ≤ the stream's and the outputs' lengths; the records' loads
+        // are checked by `partner_records`; the slots are below 8.
+        unsafe {
+            let valid = len - k;
+            let tail: u8 = if valid < 8 { (1u8 << valid) - 1 } else { 0xFF };
+            let tv = _mm256_loadu_si256(stream.as_ptr().add(k).cast());
+            let j = _mm256_and_si256(tv, lowv);
+            let slot = _mm512_cvtepu32_epi64(_mm256_and_si256(_mm256_srli_epi32::<{ SLOT_SHIFT as i32 }>(tv), slots));
+            let own = |v: __m512d| _mm512_permutexvar_pd(slot, v);
+            let tagged = stream.as_ptr().add(k);
+            let [xj, yj, zj, vjx, vjy, vjz, idj] =
+                partner_records(rec, j, tail, |l| (tagged.add(l).read_volatile() & low) as usize);
+            let (d, pass) = g.separations_from([own(qx), own(qy), own(qz)], tv, tail, [xj, yj, zj]);
+            let dv = [
+                _mm512_sub_pd(own(vix), vjx),
+                _mm512_sub_pd(own(viy), vjy),
+                _mm512_sub_pd(own(viz), vjz),
+            ];
+            let idl = _mm512_permutexvar_epi64(slot, idi);
+            let f = linear_lanes(&c, d, pass, dv, idl, _mm512_castpd_si512(idj));
+            for (out, f) in out.iter().zip(f) {
+                _mm512_storeu_pd(out.as_ptr().cast_mut().add(k), f);
+            }
         }
         k += 8;
     }
