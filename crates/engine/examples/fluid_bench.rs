@@ -4,7 +4,7 @@
 //! `cargo run --release -p hemodpd-engine --example fluid_bench -- L THREADS [STEPS] [NEQ] [SCHEME]`
 //! (defaults STEPS 1000, NEQ 200, SCHEME half; `gather` for the other pair loop). Prints one
 //! line: particle-steps/s of the timed steps, ⟨T⟩ and ⟨p⟩ sampled every 100 steps.
-//! `SORT_EVERY=k` re-sorts the storage every k steps (`SimConfig::sort_every`; default 100 here,
+//! `SORT_EVERY=k` re-sorts the storage every k steps (`SimConfig::sort_every`; default 10 here,
 //! as the fluid scenario does; 0 turns it off).
 
 use std::time::Instant;
@@ -34,7 +34,7 @@ fn main() -> Result<(), EngineError> {
     pool.install(|| {
         let mut config = SimConfig::new(DVec3::splat(l), 0.01, 34387);
         config.scheme = scheme;
-        config.sort_every = std::env::var("SORT_EVERY").ok().and_then(|s| s.parse().ok()).unwrap_or(100);
+        config.sort_every = std::env::var("SORT_EVERY").ok().and_then(|s| s.parse().ok()).unwrap_or(10);
         let field = ForceField::single(PairParams::groot_warren());
         let spec = init::FluidSpec {
             placement: init::Placement::Random,
