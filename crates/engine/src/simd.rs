@@ -666,6 +666,11 @@ unsafe fn linear_lanes(
 /// `index(l)`, clamped to the last record. `j` holds the same indices, checked for the lanes of
 /// `tail` (the others, past the last hit, have their forces masked off).
 ///
+/// The callers read the indices with volatile loads: plain loads of memory just loaded as the
+/// vector `j` were turned by LLVM into extractions from `j` (two instructions per lane, which
+/// were hot in the profile), where a scalar load is one (docs/performance.md, "The eleventh
+/// pass").
+///
 /// # Safety
 /// As [`scan_avx512`] (AVX-512 F enabled in the caller); `rec` is not empty and shorter than
 /// `i32::MAX`. Panics unless the lanes of `tail` hold indices below `rec.len()`.
