@@ -528,12 +528,14 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     }
     #[cfg(target_arch = "x86_64")]
     let (mut prev, mut prev_ns, mut pending) = (&mut scratch.prev, &mut scratch.prev_ns, None);
-    #[cfg(target_arch = "x86_64")]
-    let fbuf = &mut scratch.fbuf;
     // A cell of up to 8 particles has its forces evaluated as one stream of hits when the sorted
     // indices leave room for the slot bits (`simd::SLOT_SHIFT`).
     #[cfg(target_arch = "x86_64")]
-    let stream = (&mut scratch.stream, cl.len() + 16 < 1 << simd::SLOT_SHIFT);
+    let bufs = &mut scratch.bufs;
+    #[cfg(target_arch = "x86_64")]
+    {
+        bufs.streams = cl.len() + 16 < 1 << simd::SLOT_SHIFT;
+    }
     // The shifts of this cell's ranges and the previous cell's, swapped by reference below
     // (each is 384 bytes). Only the entries of the tags in use are set.
     #[cfg(target_arch = "x86_64")]
@@ -647,15 +649,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
                     // its hits are read well after they were stored (a load right after the
                     // compressing stores cannot be forwarded from them and stalls).
                     if let Some(p) = pending {
-                        cell_forces::<K, V, ONE>(
-                            cl,
-                            kern,
-                            (prev, prev_ns, prev_sh),
-                            p,
-                            (fbuf, &mut *stream.0, stream.1),
-                            win,
-                            &mut vir,
-                        );
+                        cell_forces::<K, V, ONE>(cl, kern, (prev, prev_ns, prev_sh), p, bufs, win, &mut vir);
                     }
                     std::mem::swap(&mut hits, &mut prev);
                     std::mem::swap(&mut ns, &mut prev_ns);
@@ -681,15 +675,7 @@ fn slab_body<K: PairKernel, const V: bool, const ONE: bool>(
     }
     #[cfg(target_arch = "x86_64")]
     if let Some(p) = pending {
-        cell_forces::<K, V, ONE>(
-            cl,
-            kern,
-            (prev, prev_ns, prev_sh),
-            p,
-            (fbuf, &mut *stream.0, stream.1),
-            win,
-            &mut vir,
-        );
+        cell_forces::<K, V, ONE>(cl, kern, (prev, prev_ns, prev_sh), p, bufs, win, &mut vir);
     }
     SCRATCH.with(|c| c.replace(scratch));
     vir
@@ -711,9 +697,17 @@ struct Scratch {
     #[cfg(target_arch = "x86_64")]
     prev_ns: Vec<usize>,
     #[cfg(target_arch = "x86_64")]
-    fbuf: [Vec<Real>; 3],
-    #[cfg(target_arch = "x86_64")]
+    bufs: KernelBufs,
+}
+
+/// The 8-lane kernel's buffers: the forces of a particle's or a cell's hits (x, y, z), and a
+/// cell's stream of hits ([`cell_stream_forces`]), which `streams` allows (set per slab).
+#[cfg(target_arch = "x86_64")]
+#[derive(Default)]
+struct KernelBufs {
+    f: [Vec<Real>; 3],
     stream: Vec<u32>,
+    streams: bool,
 }
 
 thread_local! {
@@ -722,11 +716,12 @@ thread_local! {
 
 /// The forces of one cell's particles s0..s1 from their candidates (particle k's are the tagged
 /// indices `hits` k · stride .. `ns[k]` of [`simd::scan_cell_avx512`], with the ranges' shifts
-/// `sh`), particle by particle. With the linear kernel's parameters (`linear`) and no virial each
-/// particle's forces are evaluated 8 pairs at a time into `fbuf` ([`simd::linear_forces_avx512`],
-/// the same operations per pair; candidates beyond the cutoff get +0.0), then summed in the same
-/// order. Otherwise the hits and their separations are filled in
-/// ([`simd::separations_avx512`]) and run through [`hit_forces`].
+/// `sh`), particle by particle. With the linear kernel's parameters (`linear`) and no virial a
+/// cell of up to 8 particles goes through [`cell_stream_forces`] (if `bufs.streams`); in a larger
+/// one each particle's forces are evaluated 8 pairs at a time into `bufs.f`
+/// ([`simd::linear_forces_avx512`], the same operations per pair; candidates beyond the cutoff
+/// get +0.0), then summed in the same order. Otherwise the hits and their separations are filled
+/// in ([`simd::separations_avx512`]) and run through [`hit_forces`].
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
@@ -735,22 +730,16 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
     (row, key, linear, rc2): (&[K], u64, Option<crate::kernel::LinearParams>, Real),
     (hits, ns, sh): (&mut Hits, &[usize], &[[Real; 16]; 3]),
     (s0, s1, stride): (usize, usize, usize),
-    (fbuf, stream, streams): (&mut [Vec<Real>; 3], &mut Vec<u32>, bool),
+    bufs: &mut KernelBufs,
     win: &mut Win<'_>,
     vir: &mut DMat3,
 ) {
     let linear = linear.filter(|_| !V);
-    if let (Some(lp), true) = (linear, streams && s1 - s0 <= 8) {
-        cell_stream_forces(
-            cl,
-            (key, lp, rc2),
-            (hits, ns, sh),
-            (s0, s1, stride),
-            (fbuf, stream),
-            win,
-        );
+    if let (Some(lp), true) = (linear, bufs.streams && s1 - s0 <= 8) {
+        cell_stream_forces(cl, (key, lp, rc2), (hits, ns, sh), (s0, s1, stride), bufs, win);
         return;
     }
+    let fbuf = &mut bufs.f;
     // What `simd::linear_forces_avx512` and `simd::Geometry::new` need, once per cell: particle
     // k's hits lie in k · stride .. k · stride + stride − 16 (see the scan in `slab_body`;
     // asserted per particle below), so 7 entries past them stay inside the hit arrays and
@@ -822,9 +811,10 @@ fn cell_stream_forces(
     (key, lp, rc2): (u64, crate::kernel::LinearParams, Real),
     (hits, ns, sh): (&mut Hits, &[usize], &[[Real; 16]; 3]),
     (s0, s1, stride): (usize, usize, usize),
-    (fbuf, stream): (&mut [Vec<Real>; 3], &mut Vec<u32>),
+    bufs: &mut KernelBufs,
     win: &mut Win<'_>,
 ) {
+    let (fbuf, stream) = (&mut bufs.f, &mut bufs.stream);
     let nc = s1 - s0;
     // The stream holds at most nc · (stride − 16) hits, and its copy writes 15 entries past
     // them; the forces' buffers are read 7 past them.
