@@ -817,7 +817,7 @@ fn cell_stream_forces(
     let (fbuf, stream) = (&mut bufs.f, &mut bufs.stream);
     let nc = s1 - s0;
     // The stream holds at most nc · (stride − 16) hits, and its copy writes 15 entries past
-    // them; the forces' buffers are read 7 past them.
+    // them; the kernel reads the stream and writes the forces' buffers up to 7 past them.
     let room = nc * stride;
     if stream.len() < room {
         stream.resize(room, 0);
@@ -838,7 +838,8 @@ fn cell_stream_forces(
     assert!(cl.rec.len() < (i32::MAX / 8) as usize, "too many records");
     // SAFETY: only called from the `slab_avx512` build (AVX-512 F, VL, DQ checked at run time by
     // `Isa::best`); the regions, the stream's and the buffers' room and the record count are
-    // asserted above, and the sorted indices are below 2^SLOT_SHIFT (checked by the caller).
+    // asserted above, and the sorted indices are below 2^SLOT_SHIFT (`bufs.streams`, set per
+    // slab from the particle count).
     #[allow(unsafe_code)]
     unsafe {
         let len = simd::stream_cell_hits_avx512(&hits.h.j, ns, stride, stream);
