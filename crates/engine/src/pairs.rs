@@ -787,15 +787,23 @@ fn cell_forces<K: PairKernel, const V: bool, const ONE: bool>(
                 fbuf.each_mut().map(|b| &mut b[..]),
             );
         }
-        let mut fi = DVec3::ZERO;
-        let [fx, fy, fz] = fbuf.each_ref().map(|b| &b[..hi - lo]);
-        for (((&j, &fx), &fy), &fz) in hits.h.j[lo..hi].iter().zip(fx).zip(fy).zip(fz) {
-            let f = DVec3::new(fx, fy, fz);
-            fi += f;
-            win.add((j & TAG_LOW) as usize, -f);
-        }
-        win.add(i, fi);
+        let f = fbuf.each_ref().map(|b| &b[..hi - lo]);
+        sum_hit_forces(i, &hits.h.j[lo..hi], TAG_LOW, f, win);
     }
+}
+
+/// The forces `f` (x, y, z) of particle i's hits `tagged` (sorted index: the bits of `low`), in
+/// order: each −f to its j at once, their sum to i after them.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn sum_hit_forces(i: usize, tagged: &[u32], low: u32, [fx, fy, fz]: [&[Real]; 3], win: &mut Win<'_>) {
+    let mut fi = DVec3::ZERO;
+    for (((&j, &fx), &fy), &fz) in tagged.iter().zip(fx).zip(fy).zip(fz) {
+        let f = DVec3::new(fx, fy, fz);
+        fi += f;
+        win.add((j & low) as usize, -f);
+    }
+    win.add(i, fi);
 }
 
 /// [`cell_forces`] for a cell of up to 8 particles with the linear kernel and no virial: the
@@ -846,17 +854,11 @@ fn cell_stream_forces(
         let g = simd::Geometry::new(&cl.rec, cl.position(s0).to_array(), sh, rc2);
         let out = fbuf.each_mut().map(|b| &mut b[..]);
         simd::linear_forces_cell_avx512((stream, len), &cl.rec, (s0, nc), key, lp, g, out);
-        let [fx, fy, fz] = fbuf.each_ref().map(|b| &b[..len]);
         let mut a = 0;
         for (k, &end) in ns.iter().enumerate() {
             let e = a + (end - k * stride);
-            let mut fi = DVec3::ZERO;
-            for (((&t, &fx), &fy), &fz) in stream[a..e].iter().zip(&fx[a..e]).zip(&fy[a..e]).zip(&fz[a..e]) {
-                let f = DVec3::new(fx, fy, fz);
-                fi += f;
-                win.add((t & SLOT_LOW) as usize, -f);
-            }
-            win.add(s0 + k, fi);
+            let f = fbuf.each_ref().map(|b| &b[a..e]);
+            sum_hit_forces(s0 + k, &stream[a..e], SLOT_LOW, f, win);
             a = e;
         }
     }

@@ -720,7 +720,7 @@ pub(crate) unsafe fn linear_forces_avx512(
     key: u64,
     p: crate::kernel::LinearParams,
     g: Geometry,
-    out: [&mut [Real]; 3],
+    mut out: [&mut [Real]; 3],
 ) {
     if lo >= hi {
         return;
@@ -756,8 +756,8 @@ pub(crate) unsafe fn linear_forces_avx512(
             ];
             let f = linear_lanes(&c, d, pass, dv, idv64, _mm512_castpd_si512(idj));
             let o = k - lo;
-            for (out, f) in out.iter().zip(f) {
-                _mm512_storeu_pd(out.as_ptr().cast_mut().add(o), f);
+            for (out, f) in out.iter_mut().zip(f) {
+                _mm512_storeu_pd(out.as_mut_ptr().add(o), f);
             }
         }
         k += 8;
@@ -776,8 +776,9 @@ pub(crate) const SLOT_SHIFT: u32 = 25;
 /// # Safety
 /// As [`scan_avx512`] (AVX-512 F enabled in the caller). The caller guarantees that every
 /// query's region ends 16 entries before the next region's start (`ns[k] + 16 ≤ (k + 1) ·
-/// stride`), `hits` holds `nc · stride` entries, `out` holds their total + 16, and the sorted
-/// indices are below 2^SLOT_SHIFT (checked only in debug builds).
+/// stride`; the region bounds are checked only in debug builds), `hits` holds `nc · stride`
+/// entries, `out` holds their total + 16, and the sorted indices are below 2^SLOT_SHIFT (not
+/// checked here: the slot would overwrite their high bits).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) unsafe fn stream_cell_hits_avx512(hits: &[u32], ns: &[usize], stride: usize, out: &mut [u32]) -> usize {
@@ -811,7 +812,8 @@ pub(crate) unsafe fn stream_cell_hits_avx512(hits: &[u32], ns: &[usize], stride:
 /// ([`stream_cell_hits_avx512`]), 8 pairs at a time whatever query they belong to: each lane
 /// takes its query's position, velocity and id from the cell's records (sorted particles s0 ..
 /// s0 + nc, nc ≤ 8) by its slot, and then runs the operations of [`linear_forces_avx512`] (so the
-/// same bits per pair). Written to `out[c][k]` (c = x, y, z).
+/// same bits per pair). Written to `out[c][k]` (c = x, y, z). `g` gives the ranges' shifts and
+/// the cutoff; its own query point is not used.
 ///
 /// # Safety
 /// As [`linear_forces_avx512`], with `stream` and each of `out` holding `len + 7` entries and
@@ -819,7 +821,6 @@ pub(crate) unsafe fn stream_cell_hits_avx512(hits: &[u32], ns: &[usize], stride:
 /// stream is below `rec.len()`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
 pub(crate) unsafe fn linear_forces_cell_avx512(
     (stream, len): (&[u32], usize),
     rec: &[crate::cells::Record],
@@ -827,7 +828,7 @@ pub(crate) unsafe fn linear_forces_cell_avx512(
     key: u64,
     p: crate::kernel::LinearParams,
     g: Geometry,
-    out: [&mut [Real]; 3],
+    mut out: [&mut [Real]; 3],
 ) {
     if len == 0 {
         return;
@@ -865,8 +866,8 @@ pub(crate) unsafe fn linear_forces_cell_avx512(
             ];
             let idl = _mm512_permutexvar_epi64(slot, idi);
             let f = linear_lanes(&c, d, pass, dv, idl, _mm512_castpd_si512(idj));
-            for (out, f) in out.iter().zip(f) {
-                _mm512_storeu_pd(out.as_ptr().cast_mut().add(k), f);
+            for (out, f) in out.iter_mut().zip(f) {
+                _mm512_storeu_pd(out.as_mut_ptr().add(k), f);
             }
         }
         k += 8;
