@@ -380,6 +380,9 @@ fn run_one(
         .map(|s| s.to_string_lossy().to_string())
         .unwrap_or_else(|| "run".into());
     let out_dir = out.unwrap_or_else(|| PathBuf::from("runs").join(stem));
+    // the directory is this run's until the summary is written (the run itself takes the lock
+    // again, re-entrantly; a second process stops here having changed nothing)
+    let _lock = hemodpd_scenario::lock_out_dir(&out_dir, quiet).map_err(anyhow::Error::new)?;
     let ctx = RunContext::new(out_dir.clone(), threads, !quiet);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -424,6 +427,10 @@ fn explain(path: &Path, sets: &[String]) -> Result<()> {
 
 fn resume_run(dir: &Path, threads: Option<usize>, quiet: bool) -> Result<()> {
     let threads = threads.unwrap_or_else(|| std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1));
+    if !dir.is_dir() {
+        bail!("--resume {}: no such run directory", dir.display());
+    }
+    let _lock = hemodpd_scenario::lock_out_dir(dir, quiet).map_err(anyhow::Error::new)?;
     let ctx = RunContext::new(dir.to_path_buf(), threads, !quiet);
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -437,7 +444,7 @@ fn resume_run(dir: &Path, threads: Option<usize>, quiet: bool) -> Result<()> {
         .install(|| hemodpd_scenario::resume(dir, &ctx))
         .map_err(anyhow::Error::new)?;
     let wall = t0.elapsed().as_secs_f64();
-    let ck = dir.join(hemodpd_scenario::fluid::CHECKPOINT_FILE);
+    let ck = dir.join(hemodpd_scenario::run_dir::CHECKPOINT_FILE);
     write_summary(&ck, &scenario, &[], threads, wall, results, dir, quiet)?;
     Ok(())
 }

@@ -438,3 +438,226 @@ fn wall_scenarios_resume_bit_identically() {
         assert!(b.path().join("wall_force.csv").exists());
     }
 }
+
+/// The `--set` arguments of [`small`] for the CLI.
+fn small_cli_sets() -> Vec<String> {
+    [
+        "fluid.box_size=[5.0, 5.0, 5.0]",
+        "run.equilibration_steps=100",
+        "run.steps=600",
+        "run.sample_every=10",
+        "output.trajectory_every_steps=50",
+        "output.checkpoint_every_steps=100",
+        "output.field_bins=5",
+    ]
+    .iter()
+    .flat_map(|s| ["--set".to_string(), s.to_string()])
+    .collect()
+}
+
+fn summary(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap()).unwrap()
+}
+
+/// A run killed while it writes a checkpoint (fault injection: the process aborts with the
+/// new checkpoint half written) leaves the previous checkpoint intact and a stale lock: the
+/// resume takes the lock over and ends bit-identical to an uninterrupted run. A checkpoint cut
+/// short afterwards (truncated) is reported as damaged and the previous one is used, with the
+/// same result; with both damaged the resume fails and says so.
+#[test]
+fn killed_while_checkpointing_and_truncated_checkpoints_resume_from_the_previous_one() {
+    let bin = env!("CARGO_BIN_EXE_hemodpd");
+    let scen = scenario_path();
+    let sets = small_cli_sets();
+    let reference = tempfile::tempdir().unwrap();
+    let full = Command::new(bin)
+        .arg("run")
+        .arg(&scen)
+        .args(&sets)
+        .args(["--quiet", "--threads", "1", "--out"])
+        .arg(reference.path())
+        .output()
+        .unwrap();
+    assert!(full.status.success(), "{}", String::from_utf8_lossy(&full.stderr));
+    let fingerprint = summary(reference.path())["results"]["final_state_fingerprint"].clone();
+    let resume = |dir: &Path| {
+        Command::new(bin)
+            .args(["run", "--resume", dir.to_str().unwrap(), "--threads", "2"])
+            .output()
+            .unwrap()
+    };
+    // the run aborts while writing its `k`-th checkpoint (steps 100, 200, ... are the 1st, 2nd, ...)
+    let killed_at_checkpoint = |k: u32| {
+        let d = tempfile::tempdir().unwrap();
+        let out = Command::new(bin)
+            .arg("run")
+            .arg(&scen)
+            .args(&sets)
+            .args(["--quiet", "--threads", "1", "--out"])
+            .arg(d.path())
+            .env("HEMODPD_FAULT_CHECKPOINT_ABORT", k.to_string())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr).to_string();
+        assert!(
+            !out.status.success() && out.status.code().is_none(),
+            "the run was not killed: {err}"
+        );
+        assert!(err.contains(&format!("aborting while writing checkpoint {k}")), "{err}");
+        for f in [
+            "checkpoint.h5",
+            "checkpoint.prev.h5",
+            "checkpoint.h5.tmp",
+            "hemodpd.lock",
+        ] {
+            assert!(d.path().join(f).exists(), "{f} missing after the kill");
+        }
+        let ck = hemodpd_io::checkpoint::Checkpoint::load(d.path().join("checkpoint.h5")).unwrap();
+        assert_eq!(ck.step, 100 * (k as u64 - 1), "the last complete checkpoint");
+        d
+    };
+
+    // killed in the middle of a checkpoint write: the last complete one is used
+    let d = killed_at_checkpoint(3);
+    let out = resume(d.path());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("has ended; taking it over"),
+        "the stale lock is not reported: {err}"
+    );
+    let s = summary(d.path());
+    assert_eq!(s["results"]["final_state_fingerprint"], fingerprint);
+    assert_eq!(s["results"]["resumed_from_step"].as_u64(), Some(200));
+    assert_eq!(frames(d.path()).0, frames(reference.path()).0);
+    assert!(!d.path().join("hemodpd.lock").exists(), "the lock outlived the run");
+
+    // the newest checkpoint truncated: reported as damaged, the previous one is used
+    let d = killed_at_checkpoint(4);
+    let path = d.path().join("checkpoint.h5");
+    let len = std::fs::metadata(&path).unwrap().len();
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&path)
+        .unwrap()
+        .set_len(len / 2)
+        .unwrap();
+    let out = resume(d.path());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{err}");
+    assert!(
+        err.contains("checkpoint.h5 is damaged") && err.contains("checkpoint.prev.h5 (step 200)"),
+        "{err}"
+    );
+    let s = summary(d.path());
+    assert_eq!(s["results"]["final_state_fingerprint"], fingerprint);
+    assert_eq!(s["results"]["resumed_from_step"].as_u64(), Some(200));
+    assert_eq!(frames(d.path()).0, frames(reference.path()).0);
+
+    // both damaged: a clear error, no panic
+    let d = killed_at_checkpoint(4);
+    for f in ["checkpoint.h5", "checkpoint.prev.h5"] {
+        std::fs::write(d.path().join(f), b"not a checkpoint").unwrap();
+    }
+    let out = resume(d.path());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("checkpoint.prev.h5 is damaged too") && !err.contains("panicked"),
+        "{err}"
+    );
+}
+
+/// A second `hemodpd run` or `--resume` on the output directory of a run that is going stops at
+/// once, names the process that holds it and changes nothing: the first run goes on, is
+/// interrupted and resumed, and its trajectory is whole.
+#[test]
+fn a_running_runs_directory_is_refused_to_a_second_process() {
+    let bin = env!("CARGO_BIN_EXE_hemodpd");
+    let scen = scenario_path();
+    let sets = [
+        "--set",
+        "fluid.box_size=[6.0, 6.0, 6.0]",
+        "--set",
+        "run.equilibration_steps=200",
+        "--set",
+        "run.steps=20000",
+        "--set",
+        "output.trajectory_every_steps=500",
+        "--set",
+        "output.checkpoint_every_steps=1000",
+        "--quiet",
+        "--threads",
+        "1",
+    ];
+    let d = tempfile::tempdir().unwrap();
+    let mut first = Command::new(bin)
+        .arg("run")
+        .arg(&scen)
+        .args(sets)
+        .arg("--out")
+        .arg(d.path())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // wait for the first run's lock and its first checkpoint (its files exist and are in use)
+    let t0 = std::time::Instant::now();
+    loop {
+        let lock: Option<serde_json::Value> = std::fs::read_to_string(d.path().join("hemodpd.lock"))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+        let holds = lock.is_some_and(|v| v["pid"].as_u64() == Some(first.id() as u64));
+        if holds && hemodpd_io::checkpoint::Checkpoint::load(d.path().join("checkpoint.h5")).is_ok() {
+            break;
+        }
+        assert!(first.try_wait().unwrap().is_none(), "the first run ended early");
+        assert!(t0.elapsed().as_secs() < 120, "no lock and checkpoint after 120 s");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    let trajectory = d.path().join("trajectory.h5");
+    let before = std::fs::metadata(&trajectory).unwrap().len();
+    let second = Command::new(bin)
+        .arg("run")
+        .arg(&scen)
+        .args(sets)
+        .arg("--out")
+        .arg(d.path())
+        .output()
+        .unwrap();
+    let third = Command::new(bin)
+        .args(["run", "--resume", d.path().to_str().unwrap(), "--quiet"])
+        .output()
+        .unwrap();
+    for out in [&second, &third] {
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(
+            err.contains(&format!("in use by process {} on host", first.id())) && err.contains("Nothing was changed"),
+            "{err}"
+        );
+    }
+    // the first run's trajectory was not cut (it only grows while the run goes on)
+    assert!(std::fs::metadata(&trajectory).unwrap().len() >= before);
+    assert!(first.try_wait().unwrap().is_none(), "the first run ended early");
+    Command::new("kill")
+        .args(["-INT", &first.id().to_string()])
+        .status()
+        .unwrap();
+    let out = first.wait_with_output().unwrap();
+    assert_eq!(out.status.code(), Some(130), "{}", String::from_utf8_lossy(&out.stderr));
+    let resumed = Command::new(bin)
+        .args([
+            "run",
+            "--resume",
+            d.path().to_str().unwrap(),
+            "--quiet",
+            "--threads",
+            "2",
+        ])
+        .output()
+        .unwrap();
+    assert!(resumed.status.success(), "{}", String::from_utf8_lossy(&resumed.stderr));
+    let (steps, _) = frames(d.path());
+    let expected: Vec<u64> = (0..=40).map(|k| 200 + 500 * k).collect();
+    assert_eq!(steps, expected, "the trajectory lost or repeated frames");
+}

@@ -221,11 +221,14 @@ fn write_status(pdir: &Path, state: &str, error: Option<String>) {
     let _ = hemodpd_io::summary::write_json_atomic(pdir.join(STATUS_FILE), &v);
 }
 
-/// Removes everything in a point's directory (before it runs from the start).
+/// Removes everything in a point's directory (before it runs from the start) but its lock.
 fn clear_dir(dir: &Path) -> Result<()> {
     if dir.exists() {
         for e in std::fs::read_dir(dir).with_context(|| format!("reading {}", dir.display()))? {
             let p = e.with_context(|| format!("reading {}", dir.display()))?.path();
+            if p.file_name().is_some_and(|n| n == hemodpd_scenario::run_dir::LOCK_FILE) {
+                continue;
+            }
             if p.is_dir() {
                 std::fs::remove_dir_all(&p)
             } else {
@@ -279,7 +282,17 @@ pub fn task(dir: &Path, index: usize, threads: Option<usize>, quiet: bool) -> Re
         );
         return Ok(());
     }
-    std::fs::create_dir_all(&pdir).with_context(|| format!("creating {}", pdir.display()))?;
+    // the point's directory belongs to this task until it ends: a second task on the same point
+    // (a resubmission while the first still runs, a requeue) stops here and changes nothing
+    let _lock = hemodpd_scenario::lock_out_dir(&pdir, quiet).map_err(anyhow::Error::new)?;
+    if pdir.join("summary.json").exists() {
+        eprintln!(
+            "point {index} ({}) has been finished meanwhile by another task; its results are in {}",
+            point.label,
+            pdir.join("summary.json").display()
+        );
+        return Ok(());
+    }
     write_status(&pdir, "running", None);
     let result = run_point(&m, point, &pdir, threads, quiet);
     match &result {
@@ -294,7 +307,7 @@ pub fn task(dir: &Path, index: usize, threads: Option<usize>, quiet: bool) -> Re
 
 fn run_point(m: &Manifest, point: &Point, pdir: &Path, threads: usize, quiet: bool) -> Result<()> {
     use hemodpd_scenario::RunError;
-    if pdir.join(hemodpd_scenario::fluid::CHECKPOINT_FILE).exists() {
+    if pdir.join(hemodpd_scenario::run_dir::CHECKPOINT_FILE).exists() {
         if !quiet {
             eprintln!("point {} ({}): resuming from its checkpoint", point.index, point.label);
         }
@@ -722,7 +735,7 @@ impl Table {
                         .as_ref()
                         .and_then(|s| s["error"].as_str())
                         .map(str::to_string);
-                } else if pdir.join(hemodpd_scenario::fluid::CHECKPOINT_FILE).exists() {
+                } else if pdir.join(hemodpd_scenario::run_dir::CHECKPOINT_FILE).exists() {
                     row.status = "interrupted";
                 } else if pdir.exists() {
                     row.status = "running";

@@ -91,6 +91,44 @@ fn valid_time(t: &str) -> bool {
     }
 }
 
+/// A Slurm time limit in seconds (formats as in [`valid_time`]; `None` when it is not one).
+pub fn time_limit_seconds(t: &str) -> Option<u64> {
+    if !valid_time(t) {
+        return None;
+    }
+    let (days, rest) = match t.split_once('-') {
+        Some((d, r)) => (d.parse::<u64>().ok()?, r),
+        None => (0, t),
+    };
+    let v: Vec<u64> = rest.split(':').map(|p| p.parse().ok()).collect::<Option<_>>()?;
+    let secs = if t.contains('-') {
+        // D-HH, D-HH:MM, D-HH:MM:SS
+        match v.as_slice() {
+            [h] => h * 3600,
+            [h, m] => h * 3600 + m * 60,
+            [h, m, s] => h * 3600 + m * 60 + s,
+            _ => return None,
+        }
+    } else {
+        // MM, MM:SS, HH:MM:SS
+        match v.as_slice() {
+            [m] => m * 60,
+            [m, s] => m * 60 + s,
+            [h, m, s] => h * 3600 + m * 60 + s,
+            _ => return None,
+        }
+    };
+    Some(days * 86_400 + secs)
+}
+
+/// How long before its time limit a task is sent SIGTERM (`#SBATCH --signal=B:TERM@LEAD`), in
+/// seconds: a twentieth of the limit, at least 60 s and at most 600 s, and never more than half
+/// the limit. hemodpd needs only the current step and one checkpoint (seconds for the shipped
+/// scenarios); Slurm may send the signal up to 60 s earlier than asked.
+pub fn signal_lead_seconds(limit_s: u64) -> u64 {
+    (limit_s / 20).clamp(60, 600).min(limit_s / 2).max(1)
+}
+
 /// Checks that `dir` can appear in #SBATCH lines.
 pub fn check_dir(dir: &Path) -> Result<(), SlurmError> {
     let s = dir.to_string_lossy();
@@ -142,6 +180,11 @@ pub fn script(dir: &Path, exe: &Path, m: &Manifest, opts: &SlurmOptions) -> Stri
     let _ = writeln!(s, "#SBATCH --ntasks=1");
     let _ = writeln!(s, "#SBATCH --cpus-per-task={}", opts.cpus);
     let _ = writeln!(s, "#SBATCH --time={}", opts.time);
+    // SIGTERM to the batch shell, which `exec` below makes hemodpd itself: it checkpoints and
+    // exits (status 130); sweep-collect lists the point and its resubmit command resumes it
+    if let Some(limit) = time_limit_seconds(&opts.time) {
+        let _ = writeln!(s, "#SBATCH --signal=B:TERM@{}", signal_lead_seconds(limit));
+    }
     if let Some(mem) = &opts.mem {
         let _ = writeln!(s, "#SBATCH --mem={mem}");
     }
@@ -179,6 +222,49 @@ mod tests {
             account: None,
             cpus: 2,
         }
+    }
+
+    #[test]
+    fn time_limits_and_signal_leads() {
+        for (t, secs) in [
+            ("30", 1800),
+            ("10:00", 600),
+            ("01:00:00", 3600),
+            ("1-00", 86_400),
+            ("2-12:00", 216_000),
+            ("1-00:00:30", 86_430),
+            ("1", 60),
+        ] {
+            assert_eq!(time_limit_seconds(t), Some(secs), "{t}");
+        }
+        assert_eq!(time_limit_seconds("1h"), None);
+        // short limits: half the limit; an hour: 3 minutes; days: 10 minutes
+        assert_eq!(signal_lead_seconds(60), 30);
+        assert_eq!(signal_lead_seconds(300), 60);
+        assert_eq!(signal_lead_seconds(3600), 180);
+        assert_eq!(signal_lead_seconds(86_400), 600);
+        let text = script(
+            Path::new("/sw"),
+            Path::new("/bin/hemodpd"),
+            &Manifest::new(
+                "/s/capillary.toml".into(),
+                String::new(),
+                "capillary".into(),
+                Vec::new(),
+                Vec::new(),
+                false,
+                Vec::new(),
+            ),
+            &SlurmOptions {
+                time: "1".into(),
+                ..opts()
+            },
+        );
+        assert!(text.contains("#SBATCH --signal=B:TERM@30\n"), "{text}");
+        assert!(
+            text.contains("exec \""),
+            "the task must be the batch shell to get the signal: {text}"
+        );
     }
 
     #[test]

@@ -289,19 +289,27 @@ impl Checkpoint {
     pub fn save_atomic(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
         let tmp = with_suffix(path, ".tmp");
-        {
-            let file = hdf5::File::create(&tmp).map_err(|source| IoError::Open {
-                path: tmp.clone(),
-                action: "create",
-                source,
-            })?;
-            self.write_to(&tmp, &file)?;
-            file.close().map_err(|e| IoError::hdf5(&tmp, "/", e))?;
-        }
-        fsync_path(&tmp)?;
+        self.write_synced(&tmp)?;
         std::fs::rename(&tmp, path).map_err(|e| IoError::fs(path, e))?;
         let _ = fsync_path(parent_dir(path));
         Ok(())
+    }
+
+    /// Writes the checkpoint to `path` (replacing any file there) and fsyncs it: the first half
+    /// of an atomic save, for callers that rename it into place themselves (and keep the file
+    /// it replaces).
+    pub fn write_synced(&self, path: impl AsRef<Path>) -> Result<()> {
+        let path = path.as_ref();
+        {
+            let file = hdf5::File::create(path).map_err(|source| IoError::Open {
+                path: path.to_path_buf(),
+                action: "create",
+                source,
+            })?;
+            self.write_to(path, &file)?;
+            file.close().map_err(|e| IoError::hdf5(path, "/", e))?;
+        }
+        fsync_path(path)
     }
 
     fn write_to(&self, path: &Path, file: &hdf5::File) -> Result<()> {

@@ -17,7 +17,9 @@
 
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
-use crate::fluid::{out_err, particles_from_checkpoint, particles_into_checkpoint, CHECKPOINT_FILE, TRAJECTORY_FILE};
+use crate::run_dir::{
+    self, engine_err, out_err, particles_from_checkpoint, particles_into_checkpoint, TRAJECTORY_FILE,
+};
 use crate::units::{self, FluidModel, PhysicalSystem, ThermalChoice, UnitMapping, MMHG_PER_MM_IN_PA_PER_M};
 use crate::{mesh_cache, RunContext, RunError};
 use glam::DVec3;
@@ -1021,10 +1023,6 @@ fn flux_velocity(plan: &Plan, particle_mean: f64) -> f64 {
     particle_mean * (plan.wall_radius / plan.radius).powi(2)
 }
 
-fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
-    RunError::Engine(e.to_string())
-}
-
 /// An engine error with the particle type named (membrane vertex, fluid particle, ...).
 pub fn describe_engine_error(e: hemodpd_engine::EngineError) -> RunError {
     use hemodpd_engine::EngineError as E;
@@ -1601,10 +1599,10 @@ impl Run<'_> {
         );
         particles_into_checkpoint(&mut ck, sim.particles());
         let (walls_ext, cell) = sim.extension();
-        crate::channel::json_into_checkpoint(&mut ck, "walls_state_json", &walls_ext.inner.state())?;
-        crate::channel::json_into_checkpoint(&mut ck, "progress_json", &self.st)?;
+        run_dir::json_into_checkpoint(&mut ck, "walls_state_json", &walls_ext.inner.state())?;
+        run_dir::json_into_checkpoint(&mut ck, "progress_json", &self.st)?;
         cell_into_checkpoint(&mut ck, cell, &self.rest, &self.mesh_info)?;
-        ck.save_atomic(ctx.out_dir.join(CHECKPOINT_FILE)).map_err(out_err)
+        run_dir::save_checkpoint(&ck, ctx)
     }
 }
 
@@ -1648,10 +1646,10 @@ pub(crate) fn cell_into_checkpoint(
     rest: &Mesh,
     mesh_info: &serde_json::Value,
 ) -> Result<(), RunError> {
-    crate::channel::json_into_checkpoint(ck, "cell_state_json", &cell.state())?;
+    run_dir::json_into_checkpoint(ck, "cell_state_json", &cell.state())?;
     ck.insert_vec3("membrane_rest_vertices", &rest.vertices);
     ck.insert_u32("membrane_triangles", rest.triangles.iter().flatten().copied().collect());
-    crate::channel::json_into_checkpoint(ck, "mesh_info_json", mesh_info)
+    run_dir::json_into_checkpoint(ck, "mesh_info_json", mesh_info)
 }
 
 /// The resting mesh saved by [`cell_into_checkpoint`].
@@ -1679,11 +1677,11 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, Protocol
         .iter()
         .position(|&t| t == MEMBRANE)
         .ok_or_else(|| RunError::Output("checkpoint: no membrane vertices".into()))?;
-    let cs: CellState = crate::channel::json_from_checkpoint(ck, "cell_state_json")?;
+    let cs: CellState = run_dir::json_from_checkpoint(ck, "cell_state_json")?;
     let cell = Cell::new(model, plan.cell_config(first), rest.vertices.clone())
         .and_then(|c| c.with_state(cs))
         .map_err(engine_err)?;
-    let ws: WallsState = crate::channel::json_from_checkpoint(ck, "walls_state_json")?;
+    let ws: WallsState = run_dir::json_from_checkpoint(ck, "walls_state_json")?;
     let domain = PeriodicBox::new(plan.box_lengths).map_err(engine_err)?;
     let walls_ext = Walls::new(plan.shape, plan.wall_config())
         .and_then(|w| w.with_state(ws, &domain))
@@ -1695,11 +1693,11 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, Protocol
         step: ck.step,
     };
     let mut sim = Simulation::from_state(state, (Timed::new(walls_ext), cell)).map_err(engine_err)?;
-    let st: ProtocolState = crate::channel::json_from_checkpoint(ck, "progress_json")?;
+    let st: ProtocolState = run_dir::json_from_checkpoint(ck, "progress_json")?;
     let f = DVec3::new(0.0, 0.0, st.body_force);
     sim.set_body_force(OUTER as usize, f).map_err(engine_err)?;
     sim.set_body_force(INNER as usize, f).map_err(engine_err)?;
-    let info: serde_json::Value = crate::channel::json_from_checkpoint(ck, "mesh_info_json")?;
+    let info: serde_json::Value = run_dir::json_from_checkpoint(ck, "mesh_info_json")?;
     Ok((sim, rest, st, info))
 }
 
@@ -2018,28 +2016,26 @@ pub fn run_from(
             (sim, rest, ProtocolState::default(), info)
         }
     };
-    let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
     let traj = if plan.frame_every > 0 {
-        Some(match checkpoint {
-            Some(ck) if traj_path.exists() => {
-                let last_frame = ck.step.checked_div(plan.frame_every).unwrap_or(0) * plan.frame_every;
-                TrajectoryWriter::open_append(&traj_path, last_frame).map_err(out_err)?
-            }
-            _ => {
+        let last_frame = checkpoint.and_then(|ck| run_dir::last_scheduled_frame(ck.step, 0, plan.frame_every));
+        Some(run_dir::open_trajectory(
+            ctx,
+            checkpoint.is_some(),
+            last_frame,
+            |path| {
                 let meta = RunMetadata::new("capillary", plan.toml.clone(), s.seed, unit_system(&plan)).with_extra(
                     "particle_types",
                     MetaValue::Str(
                         "fields from plasma (0) and cytosol (2); membrane frames are the cell's vertices".into(),
                     ),
                 );
-                let mut w = TrajectoryWriter::create(&traj_path, &meta).map_err(out_err)?;
-                w.write_mesh(&rest.triangles).map_err(out_err)?;
+                let mut w = TrajectoryWriter::create(path, &meta)?;
+                w.write_mesh(&rest.triangles)?;
                 let cell = &sim.extension().1;
-                w.set_membrane_reference(cell.model().area0(), cell.model().volume0())
-                    .map_err(out_err)?;
-                w
-            }
-        })
+                w.set_membrane_reference(cell.model().area0(), cell.model().volume0())?;
+                Ok(w)
+            },
+        )?)
     } else {
         None
     };

@@ -19,10 +19,13 @@ use crate::file::{
     f_dt, f_lambda, one_u64, validate_fluid_params, validate_output, validate_stepping, Check, FluidSection,
     ScenarioError,
 };
+use crate::run_dir::{
+    self, engine_err, out_err, particles_from_checkpoint, particles_into_checkpoint, CHECKPOINT_FILE, TRAJECTORY_FILE,
+};
 use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::init::{self, FluidSpec, Placement};
-use hemodpd_engine::{observe, ForceField, PairParams, Particles, SimConfig, SimState, Simulation};
+use hemodpd_engine::{observe, ForceField, PairParams, SimConfig, SimState, Simulation};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{GridSpec, RunMetadata, TrajectoryWriter, UnitSystem};
 use serde::{Deserialize, Serialize};
@@ -151,19 +154,6 @@ pub fn validate(s: &FluidScenario, file: &str) -> Result<(), ScenarioError> {
 /// Groot & Warren (1997), Fig. 4: measured pressure of the standard fluid (ρ = 3, a = 25, kBT = 1).
 pub const GROOT_WARREN_PRESSURE_RHO3_A25: f64 = 23.7;
 
-/// Name of the checkpoint file in the output directory.
-pub const CHECKPOINT_FILE: &str = "checkpoint.h5";
-/// Name of the trajectory file in the output directory.
-pub const TRAJECTORY_FILE: &str = "trajectory.h5";
-
-fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
-    RunError::Engine(e.to_string())
-}
-
-pub(crate) fn out_err(e: hemodpd_io::IoError) -> RunError {
-    RunError::Output(e.to_string())
-}
-
 fn config_and_field(s: &FluidScenario) -> (SimConfig, ForceField) {
     let f = &s.fluid;
     let mut config = SimConfig::new(
@@ -218,13 +208,6 @@ fn frame_due(s: &FluidScenario, step: u64) -> bool {
     every > 0 && step >= eq && (step - eq).is_multiple_of(every)
 }
 
-/// The last scheduled frame step at or before `step`, if any.
-fn last_frame_at_or_before(s: &FluidScenario, step: u64) -> Option<u64> {
-    let every = s.output.trajectory_every_steps;
-    let eq = s.run.equilibration_steps;
-    (every > 0 && step >= eq).then(|| eq + (step - eq) / every * every)
-}
-
 /// Sampled series and timing that a checkpoint carries.
 #[derive(Default)]
 struct Series {
@@ -246,38 +229,7 @@ fn save_checkpoint(s: &FluidScenario, ctx: &RunContext, sim: &Simulation, series
     ck.insert_f64("temperature_samples", series.temperature.clone());
     ck.insert_f64("pressure_samples", series.pressure.clone());
     ck.set_scalar("production_seconds", ScalarValue::F64(series.production_seconds));
-    ck.save_atomic(ctx.out_dir.join(CHECKPOINT_FILE)).map_err(out_err)
-}
-
-/// Stores the particle arrays (positions, velocities, the last forces, types, ids).
-pub(crate) fn particles_into_checkpoint(ck: &mut Checkpoint, p: &Particles) {
-    ck.insert_vec3("positions", &p.pos);
-    ck.insert_vec3("velocities", &p.vel);
-    ck.insert_vec3("forces", &p.force);
-    ck.insert_u32("types", p.ptype.iter().map(|&t| t as u32).collect());
-    ck.insert_u32("ids", p.id.clone());
-}
-
-/// Reads the particle arrays back, checking that their lengths agree.
-pub(crate) fn particles_from_checkpoint(ck: &Checkpoint) -> Result<Particles, RunError> {
-    let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
-    let pos = ck.vec3s("positions", None).map_err(bad)?;
-    let n = pos.len();
-    let particles = Particles {
-        pos,
-        vel: ck.vec3s("velocities", Some(n)).map_err(bad)?,
-        force: ck.vec3s("forces", Some(n)).map_err(bad)?,
-        ptype: ck.u32s("types").map_err(bad)?.iter().map(|&t| t as u16).collect(),
-        id: ck.u32s("ids").map_err(bad)?.to_vec(),
-    };
-    if particles.ptype.len() != n || particles.id.len() != n {
-        return Err(RunError::Output(format!(
-            "checkpoint: {n} positions but {} types and {} ids",
-            particles.ptype.len(),
-            particles.id.len()
-        )));
-    }
-    Ok(particles)
+    run_dir::save_checkpoint(&ck, ctx)
 }
 
 fn restore(s: &FluidScenario, ck: &Checkpoint) -> Result<(Simulation, Series), RunError> {
@@ -473,28 +425,22 @@ pub fn run_from(
     }
     let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
     let traj = if s.output.trajectory_every_steps > 0 {
-        Some(match checkpoint {
-            Some(_) if traj_path.exists() => {
-                // drop the frames after the checkpoint, and an off-schedule final frame written on interrupt
-                let keep = last_frame_at_or_before(s, start).map_or(0, |k| k + 1) as i64 - 1;
-                let cut = if keep < 0 { 0 } else { keep as u64 };
-                let mut w = TrajectoryWriter::open_append(&traj_path, cut).map_err(out_err)?;
-                if keep < 0 {
-                    // no scheduled frame yet: the file must hold none
-                    w.flush().map_err(out_err)?;
-                }
-                w
-            }
-            _ => {
+        let last_frame =
+            run_dir::last_scheduled_frame(start, s.run.equilibration_steps, s.output.trajectory_every_steps);
+        Some(run_dir::open_trajectory(
+            ctx,
+            checkpoint.is_some(),
+            last_frame,
+            |path| {
                 let meta = RunMetadata::new(
                     "dpd-fluid",
                     toml::to_string(s).unwrap_or_default(),
                     s.seed,
                     model_units(),
                 );
-                TrajectoryWriter::create(&traj_path, &meta).map_err(out_err)?
-            }
-        })
+                TrajectoryWriter::create(path, &meta)
+            },
+        )?)
     } else {
         None
     };

@@ -13,6 +13,7 @@ pub mod figures;
 pub mod file;
 pub mod fluid;
 pub mod mesh_cache;
+pub mod run_dir;
 pub mod shear;
 pub mod stretching;
 pub mod units;
@@ -84,6 +85,9 @@ pub enum RunError {
     Io { path: PathBuf, source: std::io::Error },
     #[error("interrupted at step {step}: the state is saved in {}/checkpoint.h5 (and a final frame in the trajectory, if the run writes one); continue with `hemodpd run --resume {}`", dir.display(), dir.display())]
     Interrupted { step: u64, dir: PathBuf },
+    /// Another process holds the output directory's lock: nothing was touched.
+    #[error("{}: the output directory is in use by {holder}. Nothing was changed. Wait for that run to end (or stop it), or choose another --out; if that process is gone, {} is stale and the next run takes it over", dir.display(), dir.join(run_dir::LOCK_FILE).display())]
+    Locked { dir: PathBuf, holder: String },
     #[error("cannot resume from {dir}: {message}")]
     Resume { dir: PathBuf, message: String },
     /// `--resume` on a run whose checkpoint is already at its end: nothing to do, no file is
@@ -125,18 +129,17 @@ pub fn schedule_end(scenario: &Scenario) -> (u64, &'static str) {
 /// Resumes the run whose checkpoint is in `dir` (written by an earlier run into the same
 /// directory); returns the scenario it holds and the results. The output continues in `dir`.
 pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Value), RunError> {
-    let path = dir.join(fluid::CHECKPOINT_FILE);
+    let _lock = lock_out_dir(dir, !ctx.progress)?;
     let err = |message: String| RunError::Resume {
         dir: dir.to_path_buf(),
         message,
     };
-    if !path.exists() {
-        return Err(err(format!(
-            "no {} there (runs write it after their first checkpoint interval, at the end and on Ctrl-C)",
-            fluid::CHECKPOINT_FILE
-        )));
+    let loaded = run_dir::load_checkpoint(dir)?;
+    if let Some(w) = &loaded.warning {
+        eprintln!("warning: {w}");
     }
-    let ck = hemodpd_io::checkpoint::Checkpoint::load(&path).map_err(|e| err(e.to_string()))?;
+    let ck = loaded.checkpoint;
+    let path = ck.source.clone().unwrap_or_else(|| dir.join(run_dir::CHECKPOINT_FILE));
     let mut scenario =
         load_str(&ck.scenario_toml, &format!("{} (scenario)", path.display()), &[]).map_err(|e| err(e.to_string()))?;
     // files named in the scenario (a mesh, a wall force profile) are relative to its directory
@@ -149,6 +152,18 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
             Scenario::Shear(t) => t.base_dir = dir,
             Scenario::DpdFluid(_) => {}
         }
+    }
+    // the checkpoint must be one of its own scenario's kind (a file renamed or copied from
+    // another run would otherwise fail later, or worse, run)
+    match ck.scalar_str("scenario_kind") {
+        Ok(kind) if kind == scenario.kind() => {}
+        Ok(kind) => {
+            return Err(err(format!(
+                "the checkpoint is marked as a {kind} run, but its scenario is a {} scenario",
+                scenario.kind()
+            )))
+        }
+        Err(e) => return Err(err(format!("the checkpoint does not name its kind: {e}"))),
     }
     if scenario.seed() != ck.seed {
         return Err(err(format!(
@@ -186,10 +201,7 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
 
 /// Runs a validated scenario; returns its results (the `results` object of `summary.json`).
 pub fn run(scenario: &Scenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
-    std::fs::create_dir_all(&ctx.out_dir).map_err(|source| RunError::Io {
-        path: ctx.out_dir.clone(),
-        source,
-    })?;
+    let _lock = lock_out_dir(&ctx.out_dir, !ctx.progress)?;
     match scenario {
         Scenario::Stretching(s) => stretching::run(s, ctx),
         Scenario::DpdFluid(s) => fluid::run(s, ctx),
@@ -198,4 +210,17 @@ pub fn run(scenario: &Scenario, ctx: &RunContext) -> Result<serde_json::Value, R
         Scenario::Capillary(s) => capillary::run_from(s, ctx, None),
         Scenario::Shear(s) => shear::run_from(s, ctx, None),
     }
+}
+
+/// Locks a run's output directory (see [`run_dir::DirLock`]); says so on stderr, unless `quiet`,
+/// when a stale lock is taken over. Re-entrant within a process.
+pub fn lock_out_dir(dir: &Path, quiet: bool) -> Result<run_dir::DirLock, RunError> {
+    let lock = run_dir::DirLock::acquire(dir)?;
+    if let (Some(old), false) = (lock.took_over(), quiet) {
+        eprintln!(
+            "note: {} was left by {old}, which has ended; taking it over",
+            dir.join(run_dir::LOCK_FILE).display()
+        );
+    }
+    Ok(lock)
 }

@@ -23,7 +23,9 @@ use crate::capillary::{
 };
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
-use crate::fluid::{out_err, particles_from_checkpoint, particles_into_checkpoint, CHECKPOINT_FILE, TRAJECTORY_FILE};
+use crate::run_dir::{
+    self, engine_err, out_err, particles_from_checkpoint, particles_into_checkpoint, TRAJECTORY_FILE,
+};
 use crate::units::{self, FluidModel, PhysicalSystem, UnitMapping};
 use crate::{RunContext, RunError};
 use glam::DVec3;
@@ -634,10 +636,6 @@ impl<'a> Plan<'a> {
 /// The simulation of a shear run: plates (or none) and the cell.
 pub type ShearSim = Simulation<(Option<Timed<Walls>>, Cell)>;
 
-fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
-    RunError::Engine(e.to_string())
-}
-
 fn build(plan: &Plan) -> Result<(ShearSim, Mesh, serde_json::Value), RunError> {
     let (rest, info) = plan.rest_mesh()?;
     let model = membrane_model(&plan.s.cell, &plan.map, &rest)?;
@@ -882,11 +880,11 @@ impl Stepper for Run<'_> {
         particles_into_checkpoint(&mut ck, sim.particles());
         let (walls_ext, cell) = sim.extension();
         if let Some(w) = walls_ext {
-            crate::channel::json_into_checkpoint(&mut ck, "walls_state_json", &w.inner.state())?;
+            run_dir::json_into_checkpoint(&mut ck, "walls_state_json", &w.inner.state())?;
         }
-        crate::channel::json_into_checkpoint(&mut ck, "progress_json", &self.st)?;
+        run_dir::json_into_checkpoint(&mut ck, "progress_json", &self.st)?;
         crate::capillary::cell_into_checkpoint(&mut ck, cell, &self.rest, &self.mesh_info)?;
-        ck.save_atomic(ctx.out_dir.join(CHECKPOINT_FILE)).map_err(out_err)
+        run_dir::save_checkpoint(&ck, ctx)
     }
 }
 
@@ -906,13 +904,13 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(ShearSim, Mesh, ShearState, 
         .iter()
         .position(|&t| t == MEMBRANE)
         .ok_or_else(|| RunError::Output("checkpoint: no membrane vertices".into()))?;
-    let cs: CellState = crate::channel::json_from_checkpoint(ck, "cell_state_json")?;
+    let cs: CellState = run_dir::json_from_checkpoint(ck, "cell_state_json")?;
     let cell = Cell::new(model, plan.cell_config(first), rest.vertices.clone())
         .and_then(|c| c.with_state(cs))
         .map_err(engine_err)?;
     let walls_ext = match plan.plates {
         Some(shape) => {
-            let ws: WallsState = crate::channel::json_from_checkpoint(ck, "walls_state_json")?;
+            let ws: WallsState = run_dir::json_from_checkpoint(ck, "walls_state_json")?;
             let domain = PeriodicBox::new(plan.box_lengths).map_err(engine_err)?;
             Some(Timed::new(
                 Walls::new(shape, plan.wall_config())
@@ -929,8 +927,8 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(ShearSim, Mesh, ShearState, 
         step: ck.step,
     };
     let sim = Simulation::from_state(state, (walls_ext, cell)).map_err(engine_err)?;
-    let st: ShearState = crate::channel::json_from_checkpoint(ck, "progress_json")?;
-    let info: serde_json::Value = crate::channel::json_from_checkpoint(ck, "mesh_info_json")?;
+    let st: ShearState = run_dir::json_from_checkpoint(ck, "progress_json")?;
+    let info: serde_json::Value = run_dir::json_from_checkpoint(ck, "mesh_info_json")?;
     Ok((sim, rest, st, info))
 }
 
@@ -1119,25 +1117,23 @@ pub fn run_from(
     } else {
         MotionTracker::new(&rest.vertices).map_err(motion_err)?
     };
-    let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
     let traj = if plan.frame_every > 0 {
-        Some(match checkpoint {
-            Some(ck) if traj_path.exists() => {
-                let last_frame = ck.step.checked_div(plan.frame_every).unwrap_or(0) * plan.frame_every;
-                TrajectoryWriter::open_append(&traj_path, last_frame).map_err(out_err)?
-            }
-            _ => {
+        let last_frame = checkpoint.and_then(|ck| run_dir::last_scheduled_frame(ck.step, 0, plan.frame_every));
+        Some(run_dir::open_trajectory(
+            ctx,
+            checkpoint.is_some(),
+            last_frame,
+            |path| {
                 let meta = RunMetadata::new("shear", plan.toml.clone(), s.seed, plan.map.unit_system())
                     .with_extra("shear_rate_per_s", MetaValue::F64(s.shear_rate()))
                     .with_extra("particle_types", MetaValue::Str("membrane frames only".into()));
-                let mut w = TrajectoryWriter::create(&traj_path, &meta).map_err(out_err)?;
-                w.write_mesh(&rest.triangles).map_err(out_err)?;
+                let mut w = TrajectoryWriter::create(path, &meta)?;
+                w.write_mesh(&rest.triangles)?;
                 let cell = &sim.extension().1;
-                w.set_membrane_reference(cell.model().area0(), cell.model().volume0())
-                    .map_err(out_err)?;
-                w
-            }
-        })
+                w.set_membrane_reference(cell.model().area0(), cell.model().volume0())?;
+                Ok(w)
+            },
+        )?)
     } else {
         None
     };

@@ -3,6 +3,7 @@
 
 use crate::file::{one, yes, Check, ScenarioError};
 use crate::mesh_cache::{self, constants_um_pn};
+use crate::run_dir::{self, out_err};
 use crate::{RunContext, RunError};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{FrameScalar, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
@@ -464,8 +465,7 @@ fn save_checkpoint(
     if let [.., before, _] = points {
         ck.insert_vec3("previous_positions", &before.positions);
     }
-    ck.save_atomic(ctx.out_dir.join(crate::fluid::CHECKPOINT_FILE))
-        .map_err(out_err)
+    run_dir::save_checkpoint(&ck, ctx)
 }
 
 /// The equilibria a checkpoint holds (the last two with their shapes; a checkpoint written
@@ -522,27 +522,33 @@ pub fn run_from(
     let shapes_path = ctx.out_dir.join("shapes.h5");
     let mut shapes = if !s.output.shapes {
         None
-    } else if done > 0 && shapes_path.exists() {
-        // keep the frames of the equilibria in the checkpoint, drop any later one
-        Some(TrajectoryWriter::open_append(&shapes_path, done as u64 - 1).map_err(out_err)?)
     } else {
-        let meta = RunMetadata::new(
-            "stretching",
-            toml::to_string(s).unwrap_or_default(),
-            s.seed,
-            stretching_units(),
-        );
-        let mut w = TrajectoryWriter::create(&shapes_path, &meta).map_err(out_err)?;
-        w.write_mesh(&prepared.mesh.triangles).map_err(out_err)?;
-        w.set_membrane_reference(prepared.model.area0(), prepared.model.volume0())
-            .map_err(out_err)?;
-        for (k, p) in points.iter().enumerate() {
-            // resumed without the shapes file: only the last two shapes are known
-            if !p.positions.is_empty() {
-                write_shape(&mut w, k as u64, p).map_err(out_err)?;
+        // a resumed run keeps the frames of the equilibria in the checkpoint, drops any later one
+        let create = |path: &std::path::Path| -> Result<TrajectoryWriter, hemodpd_io::IoError> {
+            let meta = RunMetadata::new(
+                "stretching",
+                toml::to_string(s).unwrap_or_default(),
+                s.seed,
+                stretching_units(),
+            );
+            let mut w = TrajectoryWriter::create(path, &meta)?;
+            w.write_mesh(&prepared.mesh.triangles)?;
+            w.set_membrane_reference(prepared.model.area0(), prepared.model.volume0())?;
+            for (k, p) in points.iter().enumerate() {
+                // resumed without the shapes file: only the last two shapes are known
+                if !p.positions.is_empty() {
+                    write_shape(&mut w, k as u64, p)?;
+                }
             }
-        }
-        Some(w)
+            Ok(w)
+        };
+        let last_frame = (done as u64).checked_sub(1);
+        Some(run_dir::open_trajectory_at(
+            &shapes_path,
+            checkpoint.is_some(),
+            last_frame,
+            create,
+        )?)
     };
     let opts = StretchOptions {
         forces: s.stretching.forces_pn[done..].to_vec(),
@@ -649,7 +655,7 @@ pub fn run_from(
         "model": prepared.info,
         "shapes_file": shapes_file,
         "resumed_from_step": checkpoint.map(|c| c.step),
-        "checkpoint_file": ctx.out_dir.join(crate::fluid::CHECKPOINT_FILE),
+        "checkpoint_file": ctx.out_dir.join(crate::run_dir::CHECKPOINT_FILE),
         "solve_seconds": earlier_seconds + t0.elapsed().as_secs_f64(),
     }))
 }
@@ -670,10 +676,6 @@ pub fn stretching_units() -> UnitSystem {
         energy_j: 1e-18,
         label: "um, pN*um (forces in pN); static frames: time = frame index, force in /membrane/scalars/force".into(),
     }
-}
-
-fn out_err(e: hemodpd_io::IoError) -> RunError {
-    RunError::Output(e.to_string())
 }
 
 #[cfg(test)]

@@ -34,14 +34,12 @@ pub mod tube;
 
 pub use couette::{run_couette, CouetteScenario, PlatesSection};
 pub use measure::{fit_line, FlowControl, Measurement, ProfileSums, BLOCKS};
-pub(crate) use run::{json_from_checkpoint, json_into_checkpoint};
 pub use tube::{run_tube, TubeScenario, TubeSection};
 
 use crate::file::{
     f_dt, f_lambda, one_u64, validate_fluid_params, validate_output, validate_stepping, yes, Check, FluidSection,
     ScenarioError,
 };
-use crate::RunError;
 use glam::DVec3;
 use hemodpd_engine::walls::{ControlLaw, Reflection, WallConfig, WallShape};
 use hemodpd_engine::{PairParams, SimConfig};
@@ -256,10 +254,6 @@ fn validate_wall_common(
         return Err(c.fail("run.profile_bins", r.profile_bins, "an integer from 2 to 1000"));
     }
     validate_output(c, output.particle_stride)
-}
-
-fn engine_err(e: hemodpd_engine::EngineError) -> RunError {
-    RunError::Engine(e.to_string())
 }
 
 fn pair(f: &FluidSection) -> PairParams {

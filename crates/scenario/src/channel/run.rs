@@ -3,20 +3,22 @@
 //! [`Stepper`], and the results every wall kind reports.
 
 use crate::driver::{self, Stepper};
-use crate::fluid::{out_err, particles_from_checkpoint, particles_into_checkpoint, CHECKPOINT_FILE, TRAJECTORY_FILE};
+use crate::run_dir::{
+    self, engine_err, json_from_checkpoint, json_into_checkpoint, out_err, particles_from_checkpoint,
+    particles_into_checkpoint, CHECKPOINT_FILE, TRAJECTORY_FILE,
+};
 use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::walls::{self, WallForceProfile, WallSetup, WallShape, Walls, WallsState};
 use hemodpd_engine::{init, ForceField, PeriodicBox, SimConfig, SimState, Simulation};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{RunMetadata, TrajectoryWriter};
-use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use super::measure::{FlowControl, Measurement, ProfileSums, BLOCKS, J0_FIRST_ZERO};
-use super::{engine_err, pair, Channel, InitialWallForce, Plan};
+use super::{pair, Channel, InitialWallForce, Plan};
 
 /// The cache file of the converged wall-force profile for this plan's fluid, geometry, bins,
 /// control law and reflection (in the mesh cache's directory; [`crate::mesh_cache::cache_dir`]).
@@ -114,17 +116,6 @@ fn build(plan: &Plan) -> Result<(Simulation<Walls>, String), RunError> {
     Ok((sim, source))
 }
 
-pub(crate) fn json_into_checkpoint<T: Serialize>(ck: &mut Checkpoint, name: &str, value: &T) -> Result<(), RunError> {
-    let bytes = serde_json::to_vec(value).map_err(|e| RunError::Output(format!("checkpoint {name}: {e}")))?;
-    ck.insert_u8(name, bytes);
-    Ok(())
-}
-
-pub(crate) fn json_from_checkpoint<T: for<'de> Deserialize<'de>>(ck: &Checkpoint, name: &str) -> Result<T, RunError> {
-    let bytes = ck.u8s(name).map_err(|e| RunError::Output(format!("checkpoint: {e}")))?;
-    serde_json::from_slice(bytes).map_err(|e| RunError::Output(format!("checkpoint {name}: {e}")))
-}
-
 fn save_checkpoint(
     plan: &Plan,
     ctx: &RunContext,
@@ -142,7 +133,7 @@ fn save_checkpoint(
     particles_into_checkpoint(&mut ck, sim.particles());
     json_into_checkpoint(&mut ck, "walls_state_json", &sim.extension().state())?;
     json_into_checkpoint(&mut ck, "measurement_json", m)?;
-    ck.save_atomic(ctx.out_dir.join(CHECKPOINT_FILE)).map_err(out_err)
+    run_dir::save_checkpoint(&ck, ctx)
 }
 
 fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(Simulation<Walls>, Measurement, String), RunError> {
@@ -467,25 +458,25 @@ pub(super) fn run_plan(
             "checkpoint at step {start} is past the end of the run ({total} steps)"
         )));
     }
-    let traj_path = ctx.out_dir.join(TRAJECTORY_FILE);
     let every = plan.output.trajectory_every_steps;
     // frames are due at multiples of `every` (none when it is 0)
-    let traj = match start.checked_div(every) {
-        None => None,
-        Some(scheduled) => Some(match checkpoint {
-            // keep the frames up to the checkpoint; drop an off-schedule final frame of an interrupt
-            Some(_) if traj_path.exists() => {
-                TrajectoryWriter::open_append(&traj_path, scheduled * every).map_err(out_err)?
-            }
-            _ => {
+    let traj = if every > 0 {
+        let last_frame = run_dir::last_scheduled_frame(start, 0, every);
+        Some(run_dir::open_trajectory(
+            ctx,
+            checkpoint.is_some(),
+            last_frame,
+            |path| {
                 let mut meta = RunMetadata::new(plan.kind, plan.toml.clone(), plan.seed, crate::fluid::model_units());
                 meta.extra.push((
                     "particle_types".into(),
                     hemodpd_io::MetaValue::Str("0 = fluid, 1 = frozen wall".into()),
                 ));
-                TrajectoryWriter::create(&traj_path, &meta).map_err(out_err)?
-            }
-        }),
+                TrajectoryWriter::create(path, &meta)
+            },
+        )?)
+    } else {
+        None
     };
     let mut run = Run {
         plan,
