@@ -6,8 +6,8 @@
 # fluid_bench (built here). The same binary at 1 and 2 threads gives the 2-thread efficiency
 # (ratio / 2). THREADS may be TxM: M copies of T threads each run at the same time, and their
 # rates are summed: `:1x2` is what two independent processes get out of the machine, the ceiling
-# for one process on 2 threads. docs/performance.md ("The fifth pass", "The sixth pass") explains
-# why these two statistics.
+# for one process on 2 threads. docs/performance.md ("The machine and how to measure on it")
+# explains why these two statistics.
 #
 # Usage: scripts/bench_alternate.sh RUNS L STEPS NEQ ENTRY...
 #   e.g. scripts/bench_alternate.sh 10 40 200 60 :1 :2            (2-thread efficiency, 192,000)

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Membrane sub-stepping (r-RESPA, model.membrane_substeps = k) against the error it introduces
-# and its cost (docs/performance.md, "Membrane sub-stepping"). The capillary scenario, N = 500,
-# a 0.5 ms rest, then FLOW_S s at 1 mm/s from rest (the parachute forming); means over the last
-# quarter of the flow, relative to the largest k of each series, same seed:
+# and its cost (docs/performance.md, "Membrane sub-stepping: k against error and cost"). The
+# capillary scenario, N = 500, a 0.5 ms rest, then FLOW_S s at 1 mm/s from rest (the parachute
+# forming); means over the last quarter of the flow, relative to the largest k of each series,
+# same seed:
 #  - with the physiological membrane viscosity η_m = 6.3e-7 N·s/m (KS_VISC; "auto" is 50 here);
 #  - without membrane viscosity (KS_PLAIN): the splitting error alone.
 #   KS_VISC="1 5 25 50 100" KS_PLAIN="1 2 4" FLOW_S=0.005 THREADS=1 scripts/bench_respa.sh

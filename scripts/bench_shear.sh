@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# The cost of the shear scenario (docs/performance.md, "Shear"): steps per second, seconds per
-# simulated second and per unit strain of the shipped scenario (scenarios/shear.toml, 24 × 20 × 16
-# µm, Lees–Edwards) at N = 500, 1000 and 5000 on 1 and 2 threads, 1.5 strain units each
-# (~2300 steps). Take it on a quiet machine.
+# The cost of the shear scenario (docs/performance.md, "The shear scenario"): steps per second,
+# seconds per simulated second and per unit strain of the shipped scenario (scenarios/shear.toml,
+# 24 × 20 × 16 µm, Lees–Edwards) at N = 500, 1000 and 5000 on 1 and 2 threads, 1.5 strain units
+# each (~2300 steps). Take it on a quiet machine.
 #   scripts/bench_shear.sh [N ...]
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -8,7 +8,7 @@
 #   scripts/bench_stretching.sh                 # N = 100 500 1000 5000 23867 (~3 min on 2 cores)
 #   SKIP_FINE=1 REF=DIR scripts/bench_stretching.sh   # no N = 23867 run; compare with DIR's
 # OUT (default runs/bench-stretching) keeps the runs; THREADS (default 2); PRECONDITIONER
-# (default gauss-newton; "none" for the plain L-BFGS of before issue 13's second pass).
+# (default gauss-newton; "none" for the plain L-BFGS).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-runs/bench-stretching}

@@ -12,7 +12,7 @@ mod sweep;
 
 /// mimalloc: faster allocation, and on Linux it asks for transparent huge pages
 /// (`madvise(MADV_HUGEPAGE)`) for its large regions, which holds the engine's particle arrays in
-/// fewer TLB entries (docs/performance.md, "The seventh pass").
+/// fewer TLB entries (docs/performance.md, "Changes tried").
 #[global_allocator]
 static ALLOCATOR: mimalloc::MiMalloc = mimalloc::MiMalloc;
 

@@ -137,6 +137,24 @@ fn bad_checkpoints_are_clear_errors() {
     );
 }
 
+/// A fluid run long enough (20,200 steps on 1 thread) to be signalled or raced while it steps:
+/// frames every 500 steps from step 200, a checkpoint every 1000.
+const LONG_RUN: [&str; 13] = [
+    "--set",
+    "fluid.box_size=[6.0, 6.0, 6.0]",
+    "--set",
+    "run.equilibration_steps=200",
+    "--set",
+    "run.steps=20000",
+    "--set",
+    "output.trajectory_every_steps=500",
+    "--set",
+    "output.checkpoint_every_steps=1000",
+    "--quiet",
+    "--threads",
+    "1",
+];
+
 /// Ctrl-C (SIGINT) on a running `hemodpd run`: exit code 130, a checkpoint and the trajectory
 /// are on disk, and `--resume` finishes the run with the same final state as an uninterrupted one.
 ///
@@ -146,21 +164,7 @@ fn bad_checkpoints_are_clear_errors() {
 #[test]
 fn ctrl_c_checkpoints_and_resumes() {
     const TOTAL: u64 = 200 + 20_000;
-    let sets = [
-        "--set",
-        "fluid.box_size=[6.0, 6.0, 6.0]",
-        "--set",
-        "run.equilibration_steps=200",
-        "--set",
-        "run.steps=20000",
-        "--set",
-        "output.trajectory_every_steps=500",
-        "--set",
-        "output.checkpoint_every_steps=1000",
-        "--quiet",
-        "--threads",
-        "1",
-    ];
+    let sets = LONG_RUN;
     let bin = env!("CARGO_BIN_EXE_hemodpd");
     let scen = scenario_path();
     let b = tempfile::tempdir().unwrap();
@@ -575,21 +579,7 @@ fn killed_while_checkpointing_and_truncated_checkpoints_resume_from_the_previous
 fn a_running_runs_directory_is_refused_to_a_second_process() {
     let bin = env!("CARGO_BIN_EXE_hemodpd");
     let scen = scenario_path();
-    let sets = [
-        "--set",
-        "fluid.box_size=[6.0, 6.0, 6.0]",
-        "--set",
-        "run.equilibration_steps=200",
-        "--set",
-        "run.steps=20000",
-        "--set",
-        "output.trajectory_every_steps=500",
-        "--set",
-        "output.checkpoint_every_steps=1000",
-        "--quiet",
-        "--threads",
-        "1",
-    ];
+    let sets = LONG_RUN;
     let d = tempfile::tempdir().unwrap();
     let mut first = Command::new(bin)
         .arg("run")

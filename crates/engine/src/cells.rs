@@ -33,7 +33,7 @@ const COPY_CHUNK: usize = 2048;
 
 /// How many sorted indices ahead the sorted copy, and the gather of the forces back to storage
 /// order, prefetch their sources: enough to cover a miss to memory at 192,000 particles, where
-/// the arrays outgrow the caches (docs/performance.md, "The seventh pass").
+/// the arrays outgrow the caches (docs/performance.md, "Changes tried").
 pub(crate) const AHEAD: usize = 16;
 
 /// The grid of cells.

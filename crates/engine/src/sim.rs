@@ -779,7 +779,7 @@ const KEEP_AWAKE_IDLE: Duration = Duration::from_micros(200);
 /// the worker is awake whenever the step on thread `caller` starts a parallel region: rayon puts
 /// an idle worker to sleep after a few dozen rounds without work, and waking it costs more on a
 /// virtual machine, where the vCPU may have been halted, than the step's short regions are worth
-/// (docs/performance.md, "The seventh pass"). Returns at once on `caller` itself (the step is
+/// (docs/performance.md, "Changes tried"). Returns at once on `caller` itself (the step is
 /// over by the time the caller could run this job), and after [`KEEP_AWAKE_IDLE`] without work, so
 /// that it can never hold its thread for long: a sequential stretch of the step, or a worker that
 /// picked this up while waiting inside other work, goes back to rayon's own scheduling. Which

@@ -668,8 +668,8 @@ unsafe fn linear_lanes(
 ///
 /// The callers read the indices with volatile loads: plain loads of memory just loaded as the
 /// vector `j` were turned by LLVM into extractions from `j` (two instructions per lane, which
-/// were hot in the profile), where a scalar load is one (docs/performance.md, "The eleventh
-/// pass").
+/// were hot in the profile), where a scalar load is one (docs/performance.md, "Changes
+/// tried").
 ///
 /// # Safety
 /// As [`scan_avx512`] (AVX-512 F enabled in the caller); `rec` is not empty and shorter than

@@ -14,6 +14,7 @@ pub mod analysis;
 pub mod checkpoint;
 pub mod error;
 mod h5util;
+mod layout;
 pub mod plot;
 pub mod progress;
 pub mod summary;

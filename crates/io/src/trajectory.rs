@@ -19,17 +19,14 @@ use crate::h5util::{
     dataset, expect_shape, get_attr, get_attr_array, get_attr_opt, get_attr_str, get_attr_str_opt, link_exists,
     set_attr, set_attr_array, set_attr_str,
 };
+use crate::layout::{check_format, frames_of, per_frame_datasets, read_one, read_rows, valid_frames, SCALARS};
 use crate::units::{Quantity, UnitSystem};
 
-/// Value of the root `format` attribute of a trajectory file.
-pub const TRAJECTORY_FORMAT: &str = "hemodpd-trajectory";
-/// Version of the trajectory layout this build writes and reads.
-pub const TRAJECTORY_VERSION: u32 = 1;
+pub use crate::layout::{TRAJECTORY_FORMAT, TRAJECTORY_VERSION};
 
 const MEMBRANE: &str = "/membrane";
 const FLUID: &str = "/fluid";
 const FIELDS: &str = "/fields";
-const SCALARS: &str = "scalars";
 
 /// An extra run-level attribute (shear rate, flow kind, driver parameters...).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -158,10 +155,6 @@ pub struct TrajectoryWriter {
     /// Wall time the last XDMF rewrite took: rewrites are spaced to keep them under ~5 %.
     xdmf_cost: Duration,
     xdmf_dirty: bool,
-}
-
-fn frames_of(path: &Path, group: &hdf5::Group) -> Result<u64> {
-    Ok(get_attr_opt::<u64>(path, group, "frames")?.unwrap_or(0))
 }
 
 impl TrajectoryWriter {
@@ -717,39 +710,6 @@ fn last_step(path: &Path, group: &hdf5::Group) -> Result<Option<u64>> {
     read_one::<u64>(path, group, "step", frames - 1).map(Some)
 }
 
-/// Complete frames of a group: its `frames` attribute, capped by the lengths of its per-frame
-/// datasets (a killed writer may leave them out of step).
-pub(crate) fn valid_frames(path: &Path, group: &hdf5::Group) -> Result<usize> {
-    let mut frames = frames_of(path, group)? as usize;
-    for ds in per_frame_datasets(path, group)? {
-        frames = frames.min(ds.shape().first().copied().unwrap_or(0));
-    }
-    Ok(frames)
-}
-
-/// The datasets of a group (and its `scalars` subgroup) whose first axis is unlimited.
-fn per_frame_datasets(path: &Path, group: &hdf5::Group) -> Result<Vec<hdf5::Dataset>> {
-    let mut out = Vec::new();
-    let gname = group.name();
-    let err = |e| IoError::hdf5(path, gname.as_str(), e);
-    for ds in group.datasets().map_err(err)? {
-        let unlimited = ds
-            .space()
-            .map(|s| s.maxdims().first().is_some_and(|m| m.is_none()))
-            .unwrap_or(false);
-        if unlimited {
-            out.push(ds);
-        }
-    }
-    if group.link_exists(SCALARS) {
-        let sg = group.group(SCALARS).map_err(err)?;
-        for ds in sg.datasets().map_err(err)? {
-            out.push(ds);
-        }
-    }
-    Ok(out)
-}
-
 fn truncate_group(path: &Path, group: &hdf5::Group, keep: usize) -> Result<()> {
     for ds in per_frame_datasets(path, group)? {
         if ds.shape().first().copied().unwrap_or(0) > keep {
@@ -757,33 +717,6 @@ fn truncate_group(path: &Path, group: &hdf5::Group, keep: usize) -> Result<()> {
         }
     }
     set_attr(path, group, "frames", keep as u64)
-}
-
-/// Reads the single value of row `i` of a 1-D per-frame dataset.
-fn read_one<T: H5Type + Copy>(path: &Path, group: &hdf5::Group, name: &str, i: usize) -> Result<T> {
-    read_rows::<T>(path, group, name, i, i + 1)?
-        .first()
-        .copied()
-        .ok_or_else(|| IoError::invalid(path, format!("{}/{name}: row {i} is empty", group.name())))
-}
-
-/// Reads rows `[start, end)` of a per-frame dataset, flattened.
-pub(crate) fn read_rows<T: H5Type>(
-    path: &Path,
-    group: &hdf5::Group,
-    name: &str,
-    start: usize,
-    end: usize,
-) -> Result<Vec<T>> {
-    let full = format!("{}/{}", group.name(), name);
-    let ds = dataset(path, group, name)?;
-    let shape = expect_shape(path, &ds, "(frames, ...)", |s| !s.is_empty() && s[0] >= end)?;
-    let mut sel = vec![SliceOrIndex::from(start..end)];
-    sel.extend(shape[1..].iter().map(|_| SliceOrIndex::from(..)));
-    let arr: ndarray::ArrayD<T> = ds
-        .read_slice(Selection::Hyperslab(Hyperslab::from(sel)))
-        .map_err(|e| IoError::hdf5(path, full, e))?;
-    Ok(arr.into_iter().collect())
 }
 
 fn write_metadata(path: &Path, file: &hdf5::File, meta: &RunMetadata) -> Result<()> {
@@ -813,38 +746,6 @@ fn write_metadata(path: &Path, file: &hdf5::File, meta: &RunMetadata) -> Result<
                 MetaValue::Str(v) => set_attr_str(path, &extra, name, v)?,
             }
         }
-    }
-    Ok(())
-}
-
-/// Checks the `format` tag and version of a trajectory file.
-pub(crate) fn check_format(path: &Path, file: &hdf5::File) -> Result<()> {
-    let format = get_attr_str_opt(path, file, "format")?;
-    match format.as_deref() {
-        Some(TRAJECTORY_FORMAT) => {}
-        Some(other) => {
-            return Err(IoError::Foreign {
-                path: path.to_path_buf(),
-                expected: "hemodpd trajectory",
-                detail: format!("root attribute `format` is `{other}`, expected `{TRAJECTORY_FORMAT}`"),
-            })
-        }
-        None => {
-            return Err(IoError::Foreign {
-                path: path.to_path_buf(),
-                expected: "hemodpd trajectory",
-                detail: "no root attribute `format`".to_string(),
-            })
-        }
-    }
-    let version: u32 = get_attr(path, file, "format_version")?;
-    if version > TRAJECTORY_VERSION {
-        return Err(IoError::UnsupportedVersion {
-            path: path.to_path_buf(),
-            kind: "trajectory",
-            found: version,
-            supported: TRAJECTORY_VERSION,
-        });
     }
     Ok(())
 }

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use crate::error::{IoError, Result};
 use crate::h5util::{dataset, get_attr, get_attr_array, link_exists, write_atomic};
-use crate::trajectory::{check_format, read_rows, valid_frames};
+use crate::layout::{check_format, frame_clock};
 
 /// The two XDMF dialects ParaView reads. They differ only in how a frame of a dataset is
 /// selected: XDMF 2 uses a `HyperSlab` data item (ParaView's *XDMF Reader*, VisIt), Xdmf3 a
@@ -150,17 +150,7 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File, flavor: Flavor) -> Result<String
         let g = file
             .group("/membrane")
             .map_err(|e| IoError::hdf5(path, "/membrane", e))?;
-        let frames = valid_frames(path, &g)?;
-        let times: Vec<f64> = if frames > 0 {
-            read_rows(path, &g, "time", 0, frames)?
-        } else {
-            vec![]
-        };
-        let steps: Vec<u64> = if frames > 0 {
-            read_rows(path, &g, "step", 0, frames)?
-        } else {
-            vec![]
-        };
+        let (times, steps) = frame_clock(path, &g)?;
         let tri = dataset(path, file, "/membrane/triangles")?.shape();
         let pos = dataset(path, file, "/membrane/positions")?.shape();
         let vel = if g.link_exists("velocities") {
@@ -219,17 +209,7 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File, flavor: Flavor) -> Result<String
     // Fluid particles.
     if link_exists(file, "/fluid/positions") {
         let g = file.group("/fluid").map_err(|e| IoError::hdf5(path, "/fluid", e))?;
-        let frames = valid_frames(path, &g)?;
-        let times: Vec<f64> = if frames > 0 {
-            read_rows(path, &g, "time", 0, frames)?
-        } else {
-            vec![]
-        };
-        let steps: Vec<u64> = if frames > 0 {
-            read_rows(path, &g, "step", 0, frames)?
-        } else {
-            vec![]
-        };
+        let (times, steps) = frame_clock(path, &g)?;
         let pos = dataset(path, file, "/fluid/positions")?.shape();
         let vel = g
             .link_exists("velocities")
@@ -305,17 +285,7 @@ fn xdmf_text(h5_path: &Path, file: &hdf5::File, flavor: Flavor) -> Result<String
                 continue;
             }
             let vshape = dataset(path, &g, "values")?.shape();
-            let frames = valid_frames(path, &g)?;
-            let times: Vec<f64> = if frames > 0 {
-                read_rows(path, &g, "time", 0, frames)?
-            } else {
-                vec![]
-            };
-            let steps: Vec<u64> = if frames > 0 {
-                read_rows(path, &g, "step", 0, frames)?
-            } else {
-                vec![]
-            };
+            let (times, steps) = frame_clock(path, &g)?;
             let kind = match comps {
                 1 => "Scalar",
                 3 => "Vector",

@@ -13,6 +13,7 @@
 //! Units: this crate is unit-agnostic; callers pass numbers in one consistent system.
 //! The stretching driver uses µm, pN and pN·µm (so kBT = 4.142e-3 pN·µm at 300 K).
 
+mod block_matrix;
 pub mod cellshape;
 pub mod coupling;
 pub mod forces;

@@ -163,7 +163,7 @@ fn config_and_field(s: &FluidScenario) -> (SimConfig, ForceField) {
     );
     config.lambda = s.run.lambda;
     // A plain fluid can have its storage kept in cell order, every 10 steps: the fastest setting
-    // we measured (docs/performance.md, "The eleventh pass").
+    // we measured (docs/performance.md, "Changes tried").
     // Frames are written in id order, so the output does not see it.
     config.sort_every = 10;
     let field = ForceField::single(PairParams {

@@ -8,7 +8,7 @@
 //! volume terms are rank one and dense, and are left to the quasi-Newton memory.
 
 use super::{kernels, ForceError, MembraneModel, TermSet};
-use crate::precondition::BlockMatrix;
+use crate::block_matrix::{outer, BlockMatrix};
 use glam::{DMat3, DVec3};
 
 impl MembraneModel {
@@ -95,12 +95,6 @@ impl MembraneModel {
         }
         (self.k_area / self.area0, self.k_volume / self.volume0)
     }
-}
-
-/// a bᵀ.
-#[inline]
-pub(crate) fn outer(a: DVec3, b: DVec3) -> DMat3 {
-    DMat3::from_cols(a * b.x, a * b.y, a * b.z)
 }
 
 #[cfg(test)]
