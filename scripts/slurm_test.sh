@@ -3,7 +3,10 @@
 # single-node cluster on this machine, emits a two-point sweep with `hemodpd sweep --emit-slurm`,
 # submits it with sbatch, waits for it, gathers the table with `hemodpd sweep-collect`, runs the
 # same grid locally and checks that the two tables agree point by point (every result identical;
-# wall times excluded). Exits non-zero on any failure. CI runs it after the test suite.
+# wall times excluded). Then a capillary point that cannot meet its one-minute limit: Slurm's
+# early SIGTERM (#SBATCH --signal) makes it checkpoint and stop, sweep-collect lists it, its
+# resubmit command resumes it to the end, and its results equal an uninterrupted local run's.
+# Exits non-zero on any failure. CI runs it after the test suite.
 #
 # Needs root (or sudo) on Debian/Ubuntu. Nothing in /etc/slurm is touched: slurm.conf, the spool,
 # state and log directories live in a temporary directory (SLURM_CONF points there) and the
@@ -12,7 +15,8 @@
 # stopped by their process ids when it ends. The binary is target/debug/hemodpd (built with the
 # test profile, as `cargo test` does) unless HEMODPD names another.
 #
-# Environment: HEMODPD (binary), SLURM_TEST_TIMEOUT (seconds to wait for the job; default 120),
+# Environment: HEMODPD (binary), SLURM_TEST_TIMEOUT (seconds to wait for a job; default 120; the
+# capillary jobs get 300 s more),
 # SLURM_TEST_KEEP=1 keeps the temporary directory.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -199,4 +203,61 @@ for ra, rb in zip(a["runs"], b["runs"]):
     shown = ", ".join("%s = %r" % (c, ra["metrics"][c]) for c in a["columns"] if c not in timing)
     print("  %s: identical (%s)" % (ra["label"], shown))
 PY
-say "PASS: the Slurm sweep's table equals the local one point by point ($(( $(date +%s) - t_start )) s)"
+say "the Slurm sweep's table equals the local one point by point"
+
+wait_job() { # JOB SECONDS
+  local t0; t0=$(date +%s)
+  while [ -n "$(squeue -h -j "$1" 2>/dev/null)" ]; do
+    [ $(( $(date +%s) - t0 )) -lt "$2" ] || { squeue -j "$1" >&2; fail "job $1 still queued or running after $2 s"; }
+    sleep 1
+  done
+}
+
+# 7. a point that meets its time limit: a capillary point of about 85 s on one CPU, given one minute
+CAP="$ROOT/scenarios/capillary.toml"
+CGRID=(--vary seed=1 --set stage.1.duration_s=0.02 --set stage.2.duration_s=0.01)
+CW="$WORK/slurm-capillary"
+"$HEMODPD" sweep "$CAP" "${CGRID[@]}" --emit-slurm "$CW" --slurm-time 1 --slurm-cpus 1 --slurm-partition debug
+grep -q '^#SBATCH --signal=B:TERM@30$' "$CW/sweep.sbatch" || fail "no --signal line for a 1-minute limit: $(grep SBATCH "$CW/sweep.sbatch")"
+JOB3=$(sbatch --parsable "$CW/sweep.sbatch")
+JOB3=${JOB3%%;*}
+say "submitted capillary job $JOB3 with a 1-minute limit"
+wait_job "$JOB3" $(( TIMEOUT + 300 ))
+OUT3="$CW/slurm/${JOB3}_0.out"
+grep -q "interrupted at step" "$OUT3" || fail "the capillary task was not stopped by its signal with a checkpoint: $(tail -n 5 "$OUT3")"
+CK=$(find "$CW" -name checkpoint.h5 | head -n1)
+[ -n "$CK" ] || fail "no checkpoint.h5 in $CW after the time limit"
+PDIR=$(dirname "$CK")
+python3 -c 'import json,sys; s=json.load(open(sys.argv[1])); assert s["state"]=="interrupted", s' "$PDIR/sweep-status.json" \
+  || fail "sweep-status.json of the stopped point: $(cat "$PDIR/sweep-status.json")"
+[ ! -e "$PDIR/summary.json" ] || fail "the stopped point wrote summary.json"
+set +e
+"$HEMODPD" sweep-collect "$CW" >/dev/null 2>"$WORK/collect3.err"
+rc=$?
+set -e
+[ "$rc" -eq 2 ] || fail "sweep-collect after the time limit exited with $rc, expected 2"
+grep -q -- "--array=0" "$WORK/collect3.err" || fail "sweep-collect did not list the stopped point: $(cat "$WORK/collect3.err")"
+say "the point checkpointed at its limit ($(grep -o 'interrupted at step [0-9]*' "$OUT3")); resubmitting it"
+JOB4=$(sbatch --parsable --array=0 --time=10 "$CW/sweep.sbatch")
+JOB4=${JOB4%%;*}
+wait_job "$JOB4" $(( TIMEOUT + 300 ))
+grep -q "resuming from its checkpoint" "$CW/slurm/${JOB4}_0.out" || fail "the resubmitted task did not resume: $(tail -n 5 "$CW/slurm/${JOB4}_0.out")"
+"$HEMODPD" sweep-collect "$CW" >/dev/null || { cat "$CW"/slurm/*.out >&2; fail "the resumed capillary point did not finish"; }
+CLOCAL="$WORK/local-capillary"
+"$HEMODPD" sweep "$CAP" "${CGRID[@]}" --out "$CLOCAL" --jobs 1 --threads-per-job 1 --quiet >/dev/null
+python3 - "$CW/sweep.json" "$CLOCAL/sweep.json" <<'PY'
+import json, sys
+a, b = (json.load(open(p)) for p in sys.argv[1:3])
+timing = set(a["timing_columns"])
+ra, rb = a["runs"][0], b["runs"][0]
+assert ra["status"] == rb["status"] == "done", (ra, rb)
+checked = 0
+for c in a["columns"]:
+    if c in timing or ra["metrics"][c] is None:
+        continue
+    assert ra["metrics"][c] == rb["metrics"][c], (c, ra["metrics"][c], rb["metrics"][c])
+    checked += 1
+assert checked >= 3, a["columns"]
+print("  capillary point stopped at its limit and resumed: %d results identical to the uninterrupted run" % checked)
+PY
+say "PASS: the Slurm sweep's table equals the local one point by point; a point past its time limit checkpoints and resumes to the same results ($(( $(date +%s) - t_start )) s)"

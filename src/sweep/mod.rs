@@ -49,49 +49,10 @@ pub struct SweepArgs {
 }
 
 /// The figures a sweep tabulates for each scenario kind: (column, JSON pointer into `results`,
-/// whether it is a timing that differs from run to run).
+/// whether it is a timing that differs from run to run); each kind declares its own
+/// ([`hemodpd_scenario::Kind::SWEEP_COLUMNS`]).
 pub fn columns(kind: &str) -> &'static [(&'static str, &'static str, bool)] {
-    match kind {
-        "stretching" => &[
-            ("RMS D_A (um)", "/mills2004/rms_axial_um", false),
-            ("RMS D_T (um)", "/mills2004/rms_transverse_um", false),
-        ],
-        "dpd-fluid" => &[
-            ("kBT", "/temperature/mean", false),
-            ("pressure", "/pressure/mean", false),
-            ("fingerprint", "/final_state_fingerprint", false),
-            ("particle-steps/s", "/throughput_particle_steps_per_s", true),
-        ],
-        "poiseuille-tube" => &[
-            ("viscosity", "/viscosity/value", false),
-            ("viscosity SE", "/viscosity/standard_error", false),
-            ("slip", "/parabola/slip_fraction", false),
-            ("max |rho/rho0-1|", "/near_wall/max_density_deviation", false),
-        ],
-        "couette" => &[
-            ("viscosity", "/viscosity/value", false),
-            ("viscosity SE", "/viscosity/standard_error", false),
-            ("slip lower", "/line/slip_fraction_lower", false),
-            ("slip upper", "/line/slip_fraction_upper", false),
-        ],
-        "capillary" => &[
-            ("cell velocity (m/s)", "/driven/cell_velocity_m_per_s", false),
-            ("fluid velocity (m/s)", "/driven/fluid_mean_velocity_m_per_s", false),
-            ("length (um)", "/driven/axial_length_um", false),
-            ("DI", "/driven/deformation_index", false),
-            ("misplaced", "/crossings/misplaced_total", false),
-        ],
-        "shear" => &[
-            ("stress (Pa)", "/shear/shear_stress_pa", false),
-            ("Ca", "/groups_si/capillary_number", false),
-            ("class", "/motion/class", false),
-            ("TTF/rate", "/motion/tank_treading_frequency_over_shear_rate", false),
-            ("flips/s", "/motion/tumbling_rate_flips_per_s", false),
-            ("incl (deg)", "/motion/mean_inclination_deg", false),
-            ("swing (deg)", "/motion/inclination_amplitude_deg", false),
-        ],
-        _ => &[],
-    }
+    hemodpd_scenario::kind::sweep_columns(kind)
 }
 
 fn available_threads() -> usize {

@@ -87,3 +87,130 @@ pub fn drive(s: &mut impl Stepper, ctx: &RunContext, resumed: bool, checkpoint_e
     progress.finish(s.step_count(), s.time());
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A schedule of `end` steps with a frame every `frame_every` steps; records what the
+    /// driver asks of it.
+    #[derive(Default)]
+    struct Log {
+        step: u64,
+        end: u64,
+        frame_every: u64,
+        frames: Vec<u64>,
+        checkpoints: Vec<u64>,
+        boundaries: Vec<u64>,
+        flushes: usize,
+    }
+
+    impl Stepper for Log {
+        fn step_count(&self) -> u64 {
+            self.step
+        }
+        fn max_steps(&self) -> u64 {
+            self.end
+        }
+        fn time(&self) -> f64 {
+            self.step as f64 * 0.01
+        }
+        fn finished(&self) -> bool {
+            self.step >= self.end
+        }
+        fn advance(&mut self) -> Result<(), RunError> {
+            self.step += 1;
+            Ok(())
+        }
+        fn frame_due(&self) -> bool {
+            self.step.is_multiple_of(self.frame_every)
+        }
+        fn write_frame(&mut self) -> Result<(), RunError> {
+            self.frames.push(self.step);
+            Ok(())
+        }
+        fn flush(&mut self) -> Result<(), RunError> {
+            self.flushes += 1;
+            Ok(())
+        }
+        fn save_checkpoint(&mut self, _ctx: &RunContext) -> Result<(), RunError> {
+            self.checkpoints.push(self.step);
+            Ok(())
+        }
+        fn at_boundary(&mut self) -> Result<(), RunError> {
+            self.boundaries.push(self.step);
+            Ok(())
+        }
+    }
+
+    fn ctx(stop_at: Option<u64>) -> RunContext {
+        RunContext {
+            stop_at_step: stop_at,
+            ..RunContext::new(std::env::temp_dir(), 1, false)
+        }
+    }
+
+    fn log(step: u64) -> Log {
+        Log {
+            step,
+            end: 25,
+            frame_every: 10,
+            ..Log::default()
+        }
+    }
+
+    #[test]
+    fn a_full_run_writes_each_due_frame_and_checkpoint_once_and_a_final_checkpoint() {
+        let mut s = log(0);
+        drive(&mut s, &ctx(None), false, 8).unwrap();
+        assert_eq!(s.step, 25);
+        assert_eq!(s.frames, [0, 10, 20]);
+        // every 8 steps after the start, and the final one (25 is not a multiple of 8)
+        assert_eq!(s.checkpoints, [8, 16, 24, 25]);
+        assert_eq!(s.boundaries, (0..=25).collect::<Vec<_>>());
+        assert_eq!(s.flushes, 0);
+    }
+
+    #[test]
+    fn an_interrupt_writes_an_off_schedule_frame_and_a_checkpoint_and_says_where() {
+        let mut s = log(0);
+        let e = drive(&mut s, &ctx(Some(13)), false, 8).unwrap_err();
+        assert!(matches!(e, RunError::Interrupted { step: 13, .. }), "{e}");
+        assert_eq!(s.frames, [0, 10, 13]);
+        assert_eq!(s.checkpoints, [8, 13]);
+        assert_eq!(s.flushes, 1);
+        // at a frame step the frame is not written twice
+        let mut s = log(0);
+        drive(&mut s, &ctx(Some(20)), false, 8).unwrap_err();
+        assert_eq!(s.frames, [0, 10, 20]);
+    }
+
+    #[test]
+    fn a_resumed_run_repeats_neither_the_frame_nor_the_checkpoint_of_its_start() {
+        // from the checkpoint of step 16 (no frame there) and of step 20 (a frame step)
+        for start in [16, 20] {
+            let mut s = log(start);
+            drive(&mut s, &ctx(None), true, 8).unwrap();
+            let frames: Vec<u64> = [10, 20].into_iter().filter(|&f| f > start).collect();
+            assert_eq!(s.frames, frames, "resumed at {start}");
+            let checkpoints: Vec<u64> = [24, 25].into_iter().filter(|&c| c > start).collect();
+            assert_eq!(s.checkpoints, checkpoints, "resumed at {start}");
+            // the boundary work of the start is repeated (it must be idempotent)
+            assert_eq!(s.boundaries.first(), Some(&start));
+        }
+        // together, an interrupted run and its resume write each frame once
+        let mut a = log(0);
+        drive(&mut a, &ctx(Some(20)), false, 8).unwrap_err();
+        let mut b = log(20);
+        drive(&mut b, &ctx(None), true, 8).unwrap();
+        let all: Vec<u64> = a.frames.iter().chain(&b.frames).copied().collect();
+        assert_eq!(all, [0, 10, 20]);
+    }
+
+    #[test]
+    fn no_periodic_checkpoints_when_the_interval_is_zero() {
+        let mut s = log(0);
+        drive(&mut s, &ctx(None), false, 0).unwrap();
+        assert_eq!(s.checkpoints, [25]);
+    }
+}

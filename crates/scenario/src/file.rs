@@ -1,11 +1,8 @@
-//! Parsing, overriding and validating scenario files: what every kind shares.
-//!
-//! A kind's own sections and their validation live in its module ([`crate::stretching`],
-//! [`crate::fluid`], [`crate::channel`], [`crate::capillary`]); here are the error type, the
-//! [`Scenario`] over the kinds, [`load`] with `--set` overrides and the dispatch to the kinds'
-//! `validate`, the format version, the `[fluid]` section of the DPD kinds and the checks the
-//! time-stepping kinds share. The kinds' section types are re-exported here under the paths they
-//! have always had.
+//! The ground floor of scenario files, which every kind may use: the error type, [`load`] with
+//! `--set` overrides, the format version, the `[fluid]` section of the DPD kinds and the checks
+//! the time-stepping kinds share. Which kinds exist and how each is parsed, validated and run is
+//! [`crate::kind`]'s; a kind's own sections live in its module. The kinds' section types are
+//! re-exported here under the paths they have always had.
 
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -40,39 +37,9 @@ pub enum ScenarioError {
     Override { assignment: String, message: String },
 }
 
-/// A validated scenario.
-#[derive(Clone, Debug, Serialize)]
-#[serde(untagged)]
-pub enum Scenario {
-    Stretching(StretchingScenario),
-    DpdFluid(FluidScenario),
-    PoiseuilleTube(TubeScenario),
-    Couette(CouetteScenario),
-    Capillary(crate::capillary::CapillaryScenario),
-    Shear(crate::shear::ShearScenario),
-}
+pub use crate::kind::Scenario;
 
 impl Scenario {
-    pub fn seed(&self) -> u64 {
-        match self {
-            Scenario::Stretching(s) => s.seed,
-            Scenario::DpdFluid(s) => s.seed,
-            Scenario::PoiseuilleTube(s) => s.seed,
-            Scenario::Couette(s) => s.seed,
-            Scenario::Capillary(s) => s.seed,
-            Scenario::Shear(s) => s.seed,
-        }
-    }
-    pub fn kind(&self) -> &'static str {
-        match self {
-            Scenario::Stretching(_) => "stretching",
-            Scenario::DpdFluid(_) => "dpd-fluid",
-            Scenario::PoiseuilleTube(_) => "poiseuille-tube",
-            Scenario::Couette(_) => "couette",
-            Scenario::Capillary(_) => "capillary",
-            Scenario::Shear(_) => "shear",
-        }
-    }
     /// The resolved scenario (defaults filled in, overrides applied) as TOML text.
     pub fn to_toml(&self) -> String {
         toml::to_string(self).unwrap_or_default()
@@ -137,7 +104,7 @@ pub struct FluidSection {
     pub weight_exponent: f64,
 }
 
-fn syntax(file: &str, e: impl std::fmt::Display) -> ScenarioError {
+pub(crate) fn syntax(file: &str, e: impl std::fmt::Display) -> ScenarioError {
     ScenarioError::Syntax {
         file: file.to_string(),
         message: e.to_string().trim_end().to_string(),
@@ -159,64 +126,10 @@ pub fn load(path: &Path, sets: &[String]) -> Result<Scenario, ScenarioError> {
         _ => PathBuf::from("."),
     };
     let dir = std::path::absolute(&dir).unwrap_or(dir);
-    match &mut s {
-        Scenario::PoiseuilleTube(t) => t.base_dir = dir,
-        Scenario::Couette(t) => t.base_dir = dir,
-        Scenario::Capillary(t) => t.base_dir = dir,
-        Scenario::Shear(t) => t.base_dir = dir,
-        Scenario::Stretching(t) => t.base_dir = dir,
-        Scenario::DpdFluid(_) => {}
-    }
+    s.set_base_dir(dir);
     // the files a scenario names must exist and fit it
-    match &s {
-        Scenario::Capillary(c) => {
-            if let Some(m) = &c.cell.mesh_file {
-                check_mesh_file(&file, "cell.mesh_file", &c.base_dir, m, c.cell.vertices)?;
-            }
-        }
-        Scenario::Shear(c) => {
-            if let Some(m) = &c.cell.mesh_file {
-                check_mesh_file(&file, "cell.mesh_file", &c.base_dir, m, c.cell.vertices)?;
-            }
-        }
-        Scenario::Stretching(st) => crate::stretching::check_files(st, &file)?,
-        _ => {}
-    }
+    s.check_files(&file)?;
     Ok(s)
-}
-
-/// A mesh file named under `key` must exist, be readable and have `vertices` vertices.
-fn check_mesh_file(file: &str, key: &str, base: &Path, m: &Path, vertices: i64) -> Result<(), ScenarioError> {
-    let full = base.join(m);
-    let name = format!("{:?}", m.display().to_string());
-    if !full.exists() {
-        return Err(ScenarioError::Value {
-            file: file.into(),
-            key: key.into(),
-            value: name,
-            allowed: format!("an existing mesh file ({} does not exist)", full.display()),
-        });
-    }
-    let mesh = hemodpd_membrane::meshio::read_mesh(&full).map_err(|e| ScenarioError::Value {
-        file: file.into(),
-        key: key.into(),
-        value: name.clone(),
-        allowed: format!(
-            "a readable closed triangle mesh in µm (OFF, PLY or NAME.vertices.csv + NAME.triangles.csv): {e}"
-        ),
-    })?;
-    let nv = mesh.vertices.len();
-    if nv as i64 != vertices {
-        return Err(ScenarioError::Value {
-            file: file.into(),
-            key: key.into(),
-            value: format!("{name} (with {nv} vertices)"),
-            allowed: format!(
-                "a mesh with {vertices} vertices: the model parameters are coarse-grained from N (Eqs. 8, 9, 12), so the file and the vertex count must agree"
-            ),
-        });
-    }
-    Ok(())
 }
 
 /// As [`load`], from text; `file` names it in messages.
@@ -243,57 +156,24 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
             allowed: format!("{FORMAT_VERSION} (the only version this build reads)"),
         });
     }
-    let kind =
-        match table.get("kind").and_then(|k| k.as_str()) {
-            Some(k) => k.to_string(),
-            None => return Err(ScenarioError::Missing {
+    let kind = match table.get("kind").and_then(|k| k.as_str()) {
+        Some(k) => k.to_string(),
+        None => {
+            return Err(ScenarioError::Missing {
                 file: file.into(),
                 key: "kind".into(),
-                what:
-                    "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\", \"capillary\", \"shear\""
-                        .into(),
-            }),
-        };
-    let value = toml::Value::Table(table);
-    match kind.as_str() {
-        "stretching" => {
-            let s: StretchingScenario = value.try_into().map_err(|e| syntax(file, e))?;
-            crate::stretching::validate(&s, file)?;
-            Ok(Scenario::Stretching(s))
+                what: crate::kind::kind_list(),
+            })
         }
-        "dpd-fluid" => {
-            let s: FluidScenario = value.try_into().map_err(|e| syntax(file, e))?;
-            crate::fluid::validate(&s, file)?;
-            Ok(Scenario::DpdFluid(s))
-        }
-        "poiseuille-tube" => {
-            let s: TubeScenario = value.try_into().map_err(|e| syntax(file, e))?;
-            crate::channel::tube::validate(&s, file)?;
-            Ok(Scenario::PoiseuilleTube(s))
-        }
-        "couette" => {
-            let s: CouetteScenario = value.try_into().map_err(|e| syntax(file, e))?;
-            crate::channel::couette::validate(&s, file)?;
-            Ok(Scenario::Couette(s))
-        }
-        "capillary" => {
-            let s: crate::capillary::CapillaryScenario = value.try_into().map_err(|e| syntax(file, e))?;
-            crate::capillary::validate(&s, file)?;
-            Ok(Scenario::Capillary(s))
-        }
-        "shear" => {
-            let s: crate::shear::ShearScenario = value.try_into().map_err(|e| syntax(file, e))?;
-            crate::shear::validate(&s, file)?;
-            Ok(Scenario::Shear(s))
-        }
-        other => Err(ScenarioError::Value {
+    };
+    Scenario::parse(&kind, toml::Value::Table(table), file).unwrap_or_else(|| {
+        Err(ScenarioError::Value {
             file: file.into(),
             key: "kind".into(),
-            value: format!("{other:?}"),
-            allowed: "one of \"stretching\", \"dpd-fluid\", \"poiseuille-tube\", \"couette\", \"capillary\", \"shear\""
-                .into(),
-        }),
-    }
+            value: format!("{kind:?}"),
+            allowed: crate::kind::kind_list(),
+        })
+    })
 }
 
 /// Applies `a.b.c=value` to the table. The value is parsed as TOML (numbers, booleans, arrays,

@@ -499,6 +499,29 @@ pub fn run_from(
     }))
 }
 
+impl crate::kind::Kind for FluidScenario {
+    const NAME: &'static str = "dpd-fluid";
+    const SWEEP_COLUMNS: &'static [crate::kind::SweepColumn] = &[
+        ("kBT", "/temperature/mean", false),
+        ("pressure", "/pressure/mean", false),
+        ("fingerprint", "/final_state_fingerprint", false),
+        ("particle-steps/s", "/throughput_particle_steps_per_s", true),
+    ];
+    fn validate(&self, file: &str) -> Result<(), ScenarioError> {
+        validate(self, file)
+    }
+    fn seed(&self) -> u64 {
+        self.seed
+    }
+    /// Steps, equilibration included.
+    fn schedule_end(&self) -> (u64, &'static str) {
+        (self.run.equilibration_steps.saturating_add(self.run.steps), "steps")
+    }
+    fn run_from(&self, ctx: &RunContext, checkpoint: Option<&Checkpoint>) -> Result<serde_json::Value, RunError> {
+        run_from(self, ctx, checkpoint)
+    }
+}
+
 /// Relative temperature error above which a fluid run is flagged: the standard fluid runs 3 %
 /// hot at Δt = 0.04 and 6 % at 0.06 (Groot & Warren 1997; docs/stability.md), and goes on,
 /// finite but hotter, up to Δt ≈ 0.1 (34 %) before the engine stops it.

@@ -12,13 +12,15 @@ pub mod driver;
 pub mod figures;
 pub mod file;
 pub mod fluid;
+pub mod kind;
 pub mod mesh_cache;
 pub mod run_dir;
 pub mod shear;
 pub mod stretching;
 pub mod units;
 
-pub use file::{load, load_str, Scenario, ScenarioError, FORMAT_VERSION};
+pub use file::{load, load_str, ScenarioError, FORMAT_VERSION};
+pub use kind::{Kind, Scenario, KIND_NAMES};
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::AtomicBool;
@@ -101,31 +103,6 @@ pub enum RunError {
     },
 }
 
-/// The end of a scenario's schedule, in the unit its checkpoint's step counts: (total, unit).
-/// Stretching counts forces done; the time-stepping kinds count steps (equilibration included
-/// for `dpd-fluid`; adaptation, flow development and sampling for the wall kinds).
-pub fn schedule_end(scenario: &Scenario) -> (u64, &'static str) {
-    fn walls_total(w: &channel::WallsSection, r: &channel::WallRunSection) -> u64 {
-        let adapt = if w.adaptive {
-            w.adapt_iterations.saturating_mul(w.update_every)
-        } else {
-            0
-        };
-        adapt.saturating_add(r.flow_steps).saturating_add(r.steps)
-    }
-    match scenario {
-        Scenario::Stretching(s) => (s.stretching.forces_pn.len() as u64, "forces"),
-        Scenario::DpdFluid(s) => (s.run.equilibration_steps.saturating_add(s.run.steps), "steps"),
-        Scenario::PoiseuilleTube(s) => (walls_total(&s.walls, &s.run), "steps"),
-        Scenario::Couette(s) => (walls_total(&s.walls, &s.run), "steps"),
-        Scenario::Capillary(s) => (
-            capillary::Plan::new(s).map(|p| p.max_steps()).unwrap_or(u64::MAX),
-            "steps",
-        ),
-        Scenario::Shear(s) => (shear::Plan::new(s).map(|p| p.steps).unwrap_or(u64::MAX), "steps"),
-    }
-}
-
 /// Resumes the run whose checkpoint is in `dir` (written by an earlier run into the same
 /// directory); returns the scenario it holds and the results. The output continues in `dir`.
 pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Value), RunError> {
@@ -144,14 +121,7 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
         load_str(&ck.scenario_toml, &format!("{} (scenario)", path.display()), &[]).map_err(|e| err(e.to_string()))?;
     // files named in the scenario (a mesh, a wall force profile) are relative to its directory
     if let Ok(dir) = ck.scalar_str("base_dir").map(PathBuf::from) {
-        match &mut scenario {
-            Scenario::PoiseuilleTube(t) => t.base_dir = dir,
-            Scenario::Couette(t) => t.base_dir = dir,
-            Scenario::Stretching(t) => t.base_dir = dir,
-            Scenario::Capillary(t) => t.base_dir = dir,
-            Scenario::Shear(t) => t.base_dir = dir,
-            Scenario::DpdFluid(_) => {}
-        }
+        scenario.set_base_dir(dir);
     }
     // the checkpoint must be one of its own scenario's kind (a file renamed or copied from
     // another run would otherwise fail later, or worse, run)
@@ -173,7 +143,7 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
         )));
     }
     // a finished run: say so and touch nothing (appending to its files would repeat the end)
-    let (total, unit) = schedule_end(&scenario);
+    let (total, unit) = scenario.schedule_end();
     // stages that end when steady finish before their longest duration: the checkpoint says so
     let marked = ck.scalar_str("finished").map(|f| f == "yes").unwrap_or(false);
     if ck.step >= total || marked {
@@ -188,28 +158,14 @@ pub fn resume(dir: &Path, ctx: &RunContext) -> Result<(Scenario, serde_json::Val
         out_dir: dir.to_path_buf(),
         ..ctx.clone()
     };
-    let results = match &scenario {
-        Scenario::DpdFluid(s) => fluid::run_from(s, &ctx, Some(&ck))?,
-        Scenario::PoiseuilleTube(s) => channel::run_tube(s, &ctx, Some(&ck))?,
-        Scenario::Couette(s) => channel::run_couette(s, &ctx, Some(&ck))?,
-        Scenario::Stretching(s) => stretching::run_from(s, &ctx, Some(&ck))?,
-        Scenario::Capillary(s) => capillary::run_from(s, &ctx, Some(&ck))?,
-        Scenario::Shear(s) => shear::run_from(s, &ctx, Some(&ck))?,
-    };
+    let results = scenario.run_from(&ctx, Some(&ck))?;
     Ok((scenario, results))
 }
 
 /// Runs a validated scenario; returns its results (the `results` object of `summary.json`).
 pub fn run(scenario: &Scenario, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let _lock = lock_out_dir(&ctx.out_dir, !ctx.progress)?;
-    match scenario {
-        Scenario::Stretching(s) => stretching::run(s, ctx),
-        Scenario::DpdFluid(s) => fluid::run(s, ctx),
-        Scenario::PoiseuilleTube(s) => channel::run_tube(s, ctx, None),
-        Scenario::Couette(s) => channel::run_couette(s, ctx, None),
-        Scenario::Capillary(s) => capillary::run_from(s, ctx, None),
-        Scenario::Shear(s) => shear::run_from(s, ctx, None),
-    }
+    scenario.run_from(ctx, None)
 }
 
 /// Locks a run's output directory (see [`run_dir::DirLock`]); says so on stderr, unless `quiet`,

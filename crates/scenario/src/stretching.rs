@@ -678,6 +678,33 @@ pub fn stretching_units() -> UnitSystem {
     }
 }
 
+impl crate::kind::Kind for StretchingScenario {
+    const NAME: &'static str = "stretching";
+    const SWEEP_COLUMNS: &'static [crate::kind::SweepColumn] = &[
+        ("RMS D_A (um)", "/mills2004/rms_axial_um", false),
+        ("RMS D_T (um)", "/mills2004/rms_transverse_um", false),
+    ];
+    fn validate(&self, file: &str) -> Result<(), ScenarioError> {
+        validate(self, file)
+    }
+    fn seed(&self) -> u64 {
+        self.seed
+    }
+    fn set_base_dir(&mut self, dir: PathBuf) {
+        self.base_dir = dir;
+    }
+    fn check_files(&self, file: &str) -> Result<(), ScenarioError> {
+        check_files(self, file)
+    }
+    /// Forces done.
+    fn schedule_end(&self) -> (u64, &'static str) {
+        (self.stretching.forces_pn.len() as u64, "forces")
+    }
+    fn run_from(&self, ctx: &RunContext, checkpoint: Option<&Checkpoint>) -> Result<serde_json::Value, RunError> {
+        run_from(self, ctx, checkpoint)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -48,6 +48,18 @@ use std::path::{Path, PathBuf};
 
 // ---- the scenario files' shared sections: `[walls]`, `[run]`, `[output]` ----
 
+
+/// The steps a wall scenario's schedule takes: adaptation (if adaptive), flow development and
+/// sampling.
+pub(crate) fn scheduled_steps(w: &WallsSection, r: &WallRunSection) -> u64 {
+    let adapt = if w.adaptive {
+        w.adapt_iterations.saturating_mul(w.update_every)
+    } else {
+        0
+    };
+    adapt.saturating_add(r.flow_steps).saturating_add(r.steps)
+}
+
 /// `[output]` of the wall scenarios (optional). Steps count from the start of the walled run
 /// (adaptation included).
 #[derive(Clone, Debug, Deserialize, Serialize)]
