@@ -272,7 +272,7 @@ fn run_point(m: &Manifest, point: &Point, pdir: &Path, threads: usize, quiet: bo
         if !quiet {
             eprintln!("point {} ({}): resuming from its checkpoint", point.index, point.label);
         }
-        match crate::resume_run(pdir, Some(threads), quiet) {
+        match crate::run::resume_run(pdir, Some(threads), quiet) {
             Ok(()) => return Ok(()),
             Err(e) => match e.downcast_ref::<RunError>() {
                 Some(RunError::Interrupted { .. }) => return Err(e),
@@ -288,7 +288,7 @@ fn run_point(m: &Manifest, point: &Point, pdir: &Path, threads: usize, quiet: bo
     }
     clear_dir(pdir)?;
     write_status(pdir, "running", None);
-    crate::run_one(
+    crate::run::run_one(
         &m.scenario_file,
         &point.overrides(&m.sets),
         Some(pdir.to_path_buf()),

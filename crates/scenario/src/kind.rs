@@ -141,7 +141,13 @@ pub fn kind_list() -> String {
 
 /// Checks a mesh file named under `key` (relative to `base`): it must exist, be readable and
 /// have `vertices` vertices. For the kinds that take a `mesh_file`.
-pub(crate) fn check_mesh_file(file: &str, key: &str, base: &Path, m: &Path, vertices: i64) -> Result<(), ScenarioError> {
+pub(crate) fn check_mesh_file(
+    file: &str,
+    key: &str,
+    base: &Path,
+    m: &Path,
+    vertices: i64,
+) -> Result<(), ScenarioError> {
     let full = base.join(m);
     let name = format!("{:?}", m.display().to_string());
     if !full.exists() {
@@ -211,7 +217,9 @@ impl Kind for crate::capillary::CapillaryScenario {
     /// Steps of the longest schedule (stages that end when steady end earlier).
     fn schedule_end(&self) -> (u64, &'static str) {
         (
-            crate::capillary::Plan::new(self).map(|p| p.max_steps()).unwrap_or(u64::MAX),
+            crate::capillary::Plan::new(self)
+                .map(|p| p.max_steps())
+                .unwrap_or(u64::MAX),
             "steps",
         )
     }
@@ -250,7 +258,10 @@ impl Kind for crate::shear::ShearScenario {
         }
     }
     fn schedule_end(&self) -> (u64, &'static str) {
-        (crate::shear::Plan::new(self).map(|p| p.steps).unwrap_or(u64::MAX), "steps")
+        (
+            crate::shear::Plan::new(self).map(|p| p.steps).unwrap_or(u64::MAX),
+            "steps",
+        )
     }
     fn run_from(&self, ctx: &RunContext, checkpoint: Option<&Checkpoint>) -> Result<serde_json::Value, RunError> {
         crate::shear::run_from(self, ctx, checkpoint)

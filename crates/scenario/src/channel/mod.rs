@@ -48,7 +48,6 @@ use std::path::{Path, PathBuf};
 
 // ---- the scenario files' shared sections: `[walls]`, `[run]`, `[output]` ----
 
-
 /// The steps a wall scenario's schedule takes: adaptation (if adaptive), flow development and
 /// sampling.
 pub(crate) fn scheduled_steps(w: &WallsSection, r: &WallRunSection) -> u64 {
