@@ -7,6 +7,9 @@ use hemodpd_scenario::{load, load_str, run, RunContext, RunError, Scenario};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
+mod common;
+use common::f;
+
 fn scenario_path() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/capillary.toml")
 }
@@ -14,10 +17,6 @@ fn scenario_path() -> PathBuf {
 fn capillary(sets: &[&str]) -> Scenario {
     let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
     load(&scenario_path(), &sets).unwrap()
-}
-
-fn f(v: &Value) -> f64 {
-    v.as_f64().unwrap_or(f64::NAN)
 }
 
 fn stage<'a>(r: &'a Value, name: &str) -> &'a Value {
@@ -141,34 +140,10 @@ fn capillary_resumes_bit_identically() {
     run(&s, &RunContext::new(whole.path(), 0, false)).unwrap();
     let parts = tempfile::tempdir().unwrap();
     let mut ctx = RunContext::new(parts.path(), 0, false);
-    ctx.stop_at_step = Some(137); // inside the first stage
-    assert!(matches!(run(&s, &ctx), Err(RunError::Interrupted { step: 137, .. })));
-    ctx.stop_at_step = Some(301); // inside the controlled stage
-    assert!(matches!(
-        hemodpd_scenario::resume(parts.path(), &ctx),
-        Err(RunError::Interrupted { step: 301, .. })
-    ));
-    ctx.stop_at_step = None;
-    hemodpd_scenario::resume(parts.path(), &ctx).unwrap();
-    let a = std::fs::read_to_string(whole.path().join("cell.csv")).unwrap();
-    let b = std::fs::read_to_string(parts.path().join("cell.csv")).unwrap();
-    assert_eq!(a, b, "time series differ");
-    let ck = |d: &Path| hemodpd_io::checkpoint::Checkpoint::load(d.join("checkpoint.h5")).unwrap();
-    let (ca, cb) = (ck(whole.path()), ck(parts.path()));
-    assert_eq!(ca.step, cb.step);
-    assert_eq!(
-        ca.vec3s("positions", None).unwrap(),
-        cb.vec3s("positions", None).unwrap()
-    );
-    assert_eq!(
-        ca.vec3s("velocities", None).unwrap(),
-        cb.vec3s("velocities", None).unwrap()
-    );
-    // the trajectory has each scheduled frame once
-    let t = hemodpd_io::TrajectoryReader::open(parts.path().join("trajectory.h5")).unwrap();
-    let steps = t.membrane_steps().unwrap();
-    let u = hemodpd_io::TrajectoryReader::open(whole.path().join("trajectory.h5")).unwrap();
-    assert_eq!(steps, u.membrane_steps().unwrap());
+    // stopped inside the first stage, then inside the controlled stage
+    common::run_in_three_parts(&s, &mut ctx, [137, 301]);
+    // the same series and particles, and the trajectory has each scheduled frame once
+    common::assert_same_end(whole.path(), parts.path(), "cell.csv", "time series");
     // a finished run says so and is not touched
     assert!(matches!(
         hemodpd_scenario::resume(parts.path(), &ctx),
@@ -219,27 +194,21 @@ fn bad_capillary_input_names_the_key() {
 /// mapping keeps exact agree to the digits printed.
 #[test]
 fn explain_units_prints_the_mapping() {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_hemodpd"))
-        .args(["run", scenario_path().to_str().unwrap(), "--explain-units"])
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let text = String::from_utf8(out.stdout).unwrap();
-    for key in [
-        "length r",
-        "energy E",
-        "time τ",
-        "time step",
+    let text = common::explain_units(&scenario_path());
+    common::assert_explained(
+        &text,
+        &[
+            "length r",
+            "energy E",
+            "time τ",
+            "time step",
+            "capillary η U/μ0",
+            "Reynolds",
+            "Mach",
+            "κ/kBT",
+        ],
         "capillary η U/μ0",
-        "Reynolds",
-        "Mach",
-        "κ/kBT",
-    ] {
-        assert!(text.contains(key), "no {key} in\n{text}");
-    }
-    let line = text.lines().find(|l| l.contains("capillary η U/μ0")).unwrap();
-    let nums: Vec<&str> = line.split_whitespace().rev().take(2).collect();
-    assert_eq!(nums[0], nums[1], "{line}");
+    );
     // a scenario in model units has nothing to explain
     let fluid = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/dpd-fluid.toml");
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_hemodpd"))

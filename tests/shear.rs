@@ -2,9 +2,12 @@
 //! Lees–Edwards boundaries or sliding plates, SI in and out, the motion classified.
 //! Measured values are in the comments; tolerances say why.
 
-use hemodpd_scenario::{load, run, RunContext, RunError, Scenario};
+use hemodpd_scenario::{load, run, RunContext, Scenario};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
+
+mod common;
+use common::f;
 
 fn scenario_path() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/shear.toml")
@@ -20,10 +23,6 @@ fn small(sets: &[&str]) -> Scenario {
     ];
     all.extend(sets.iter().map(|s| s.to_string()));
     load(&scenario_path(), &all).unwrap()
-}
-
-fn f(v: &Value) -> f64 {
-    v.as_f64().unwrap_or(f64::NAN)
 }
 
 /// A short run (3 strain units at 32 1/s, Lees–Edwards and plates):
@@ -85,34 +84,8 @@ fn shear_resumes_bit_identically_on_any_thread_count() {
         .unwrap();
     let parts = tempfile::tempdir().unwrap();
     let mut ctx = RunContext::new(parts.path(), 2, false);
-    pool(2).install(|| {
-        ctx.stop_at_step = Some(333);
-        assert!(matches!(run(&s, &ctx), Err(RunError::Interrupted { step: 333, .. })));
-        ctx.stop_at_step = Some(1001);
-        assert!(matches!(
-            hemodpd_scenario::resume(parts.path(), &ctx),
-            Err(RunError::Interrupted { step: 1001, .. })
-        ));
-        ctx.stop_at_step = None;
-        hemodpd_scenario::resume(parts.path(), &ctx).unwrap();
-    });
-    let a = std::fs::read_to_string(whole.path().join("motion.csv")).unwrap();
-    let b = std::fs::read_to_string(parts.path().join("motion.csv")).unwrap();
-    assert_eq!(a, b, "motion series differ");
-    let ck = |d: &Path| hemodpd_io::checkpoint::Checkpoint::load(d.join("checkpoint.h5")).unwrap();
-    let (ca, cb) = (ck(whole.path()), ck(parts.path()));
-    assert_eq!(ca.step, cb.step);
-    assert_eq!(
-        ca.vec3s("positions", None).unwrap(),
-        cb.vec3s("positions", None).unwrap()
-    );
-    assert_eq!(
-        ca.vec3s("velocities", None).unwrap(),
-        cb.vec3s("velocities", None).unwrap()
-    );
-    let t = hemodpd_io::TrajectoryReader::open(parts.path().join("trajectory.h5")).unwrap();
-    let u = hemodpd_io::TrajectoryReader::open(whole.path().join("trajectory.h5")).unwrap();
-    assert_eq!(t.membrane_steps().unwrap(), u.membrane_steps().unwrap());
+    pool(2).install(|| common::run_in_three_parts(&s, &mut ctx, [333, 1001]));
+    common::assert_same_end(whole.path(), parts.path(), "motion.csv", "motion series");
 }
 
 /// Bad input fails before any work, naming the key, the value and what is allowed.
@@ -150,26 +123,20 @@ fn bad_shear_input_names_the_key() {
 /// number agrees in both systems.
 #[test]
 fn shear_explain_units_prints_the_mapping() {
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_hemodpd"))
-        .args(["run", scenario_path().to_str().unwrap(), "--explain-units"])
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let text = String::from_utf8(out.stdout).unwrap();
-    for key in [
-        "shear rate",
-        "shear stress",
-        "time step",
-        "Ca = η_out γ̇ R/μ0",
-        "κ/kBT",
-        "Mach",
-        "Re",
-    ] {
-        assert!(text.contains(key), "no {key} in\n{text}");
-    }
-    let line = text.lines().find(|l| l.contains("Ca = η_out")).unwrap();
-    let nums: Vec<&str> = line.split_whitespace().rev().take(2).collect();
-    assert_eq!(nums[0], nums[1], "{line}");
+    let text = common::explain_units(&scenario_path());
+    common::assert_explained(
+        &text,
+        &[
+            "shear rate",
+            "shear stress",
+            "time step",
+            "Ca = η_out γ̇ R/μ0",
+            "κ/kBT",
+            "Mach",
+            "Re",
+        ],
+        "Ca = η_out",
+    );
 }
 
 /// Real short runs land in the right class (N = 100, 14 × 12 × 12 µm, 16 strain units, the

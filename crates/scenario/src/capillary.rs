@@ -1,54 +1,43 @@
 //! `kind = "capillary"`: one red blood cell in a tube of plasma (Pivkin & Karniadakis 2008,
-//! Fig. 3), in SI units (docs/capillary.md).
+//! Fig. 3), in SI units (docs/capillary.md); a kind of the cell-in-flow family ([`crate::cell`]:
+//! the `[cell]` section, the particle types, the force field, placing the cell, checkpoints).
 //!
-//! The scenario owns its section of the file ([`CapillaryScenario`], validated here), the build
-//! (the unit mapping of [`crate::units`], walls cut from an equilibrated fluid, the cell placed
-//! on the axis with its symmetry axis along the tube, inner and outer fluid split by the
-//! generalised winding number), the observation (shape measures, velocities, area, volume,
-//! membrane temperature, crossings) and the results; the stepping loop, frames, checkpoints and
-//! Ctrl-C are [`crate::driver`]'s.
-//!
-//! Particle types: 0 outer fluid (plasma), 1 frozen wall, 2 inner fluid (cytosol), 3 membrane
-//! vertex. Pairs: fluid–fluid of each side with its own γ; inner–outer conservative only (the
-//! membrane has no thickness, so the two fluids still push on each other, but exchange no
-//! momentum dissipatively); membrane–fluid a = 0 and the no-slip friction of each side
-//! ([`crate::units::fsi_friction`]); membrane–wall as membrane–plasma plus a short repulsion;
-//! membrane–membrane nothing (the membrane model acts between vertices).
+//! Here is what is the capillary's own: its sections (`[tube]`, `[plasma]`, `[[stage]]`, the
+//! flow controller's key of `[model]`), validated here; the plan (the unit mapping of
+//! [`crate::units`], the tube's walls cut from an equilibrated fluid, the cell placed on the axis
+//! with its symmetry axis along the tube); the stages and the flow controller; the observation
+//! (shape measures, velocities, area, volume, membrane temperature, crossings) and the results,
+//! with the Hochmuth fit. The stepping loop, frames, checkpoints and Ctrl-C are
+//! [`crate::driver`]'s.
 
+use crate::cell::build::{
+    cell_membrane_viscosity, cell_mesh_um, check_membrane_timestep, membrane_model, place_cell, CellPlan,
+};
+use crate::cell::checkpoint::{open_cell_trajectory, restore_cell_run, save_cell_run, CheckpointHead, Restored};
+use crate::cell::section::{cell_params, resolve_substeps, thermal_choice, validate_cell, validate_model, ModelKeys};
+use crate::cell::summary::{crossings_json, membrane_viscosity_summary, step_shares};
+use crate::cell::{CellSection, CellSim, VERTEX_MASS};
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
-use crate::run_dir::{
-    self, engine_err, out_err, particles_from_checkpoint, particles_into_checkpoint, TRAJECTORY_FILE,
-};
-use crate::units::{self, FluidModel, PhysicalSystem, ThermalChoice, UnitMapping, MMHG_PER_MM_IN_PA_PER_M};
-use crate::{mesh_cache, RunContext, RunError};
+use crate::run_dir::{engine_err, out_err, TRAJECTORY_FILE};
+use crate::units::{self, um_to_m, FluidModel, PhysicalSystem, ThermalChoice, UnitMapping, MMHG_PER_MM_IN_PA_PER_M};
+use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::params::CAPILLARY_FLUID_WALL_SLIP;
-use hemodpd_engine::walls::{self, Reflection, WallConfig, WallSetup, WallShape, Walls, WallsState};
-use hemodpd_engine::{
-    ForceField, PairParams, Particles, PeriodicBox, SimConfig, SimState, Simulation, Timed, TypeSpec,
-};
-use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
+use hemodpd_engine::walls::{self, WallSetup, WallShape};
+use hemodpd_engine::SimConfig;
+use hemodpd_io::checkpoint::Checkpoint;
 use hemodpd_io::{FrameScalar, GridSpec, MetaValue, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
 use hemodpd_membrane::cellshape::{self, RestProfile, ShapeMetrics};
-use hemodpd_membrane::coupling::{Cell, CellConfig, CellState, MembraneReflection, WallRepulsion};
-use hemodpd_membrane::forces::MembraneConstants;
 use hemodpd_membrane::params::ModelParams;
 use hemodpd_membrane::shape::EvansFung;
 use hemodpd_membrane::viscosity::MembraneViscosity;
-use hemodpd_membrane::{MembraneModel, Mesh, ReferenceState};
+use hemodpd_membrane::{MembraneModel, Mesh};
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::path::PathBuf;
 
-/// Type of the outer fluid (plasma).
-pub const OUTER: u16 = 0;
-/// Type of the frozen wall particles.
-pub const WALL: u16 = 1;
-/// Type of the inner fluid (cytosol).
-pub const INNER: u16 = 2;
-/// Type of the membrane vertices.
-pub const MEMBRANE: u16 = 3;
+pub use crate::cell::{describe_engine_error, INNER, MEMBRANE, OUTER, WALL};
 
 /// Axis of the tube (z).
 const AXIS: usize = 2;
@@ -67,69 +56,6 @@ fn d_eta() -> f64 {
 }
 fn d_one() -> f64 {
     1.0
-}
-fn d_temp() -> f64 {
-    300.0
-}
-fn d_n() -> i64 {
-    500
-}
-fn d_ka() -> f64 {
-    hemodpd_membrane::forces::DEFAULT_K_AREA_N_PER_M
-}
-fn d_kv() -> f64 {
-    hemodpd_membrane::forces::DEFAULT_K_VOLUME_N_PER_M2
-}
-fn d_thermal() -> ThermalSetting {
-    ThermalSetting::Word("auto".into())
-}
-
-/// `model.thermal_factor`: "auto", "exact" or a number f ≥ 1.
-#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
-#[serde(untagged)]
-pub enum ThermalSetting {
-    Factor(f64),
-    Word(String),
-}
-
-impl std::fmt::Display for ThermalSetting {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            ThermalSetting::Factor(x) => write!(f, "{x}"),
-            ThermalSetting::Word(w) => write!(f, "{w:?}"),
-        }
-    }
-}
-/// `model.membrane_substeps`: an integer k (1–1000; 1, the default: no sub-stepping) or
-/// "auto" (the smallest k with (γ_T + γ_C)(Δt/k)/μ ≤ 1 when there is a membrane viscosity, else 1).
-#[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
-#[serde(untagged)]
-pub enum SubstepSetting {
-    Count(i64),
-    Word(String),
-}
-
-impl std::fmt::Display for SubstepSetting {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            SubstepSetting::Count(k) => write!(f, "{k}"),
-            SubstepSetting::Word(w) => write!(f, "{w:?}"),
-        }
-    }
-}
-
-pub(crate) fn d_substeps() -> SubstepSetting {
-    SubstepSetting::Count(1)
-}
-
-fn d_mach() -> f64 {
-    units::MACH_LIMIT
-}
-fn d_check() -> u64 {
-    500
-}
-fn d_range() -> f64 {
-    0.3
 }
 fn d_sample() -> u64 {
     20
@@ -156,6 +82,18 @@ pub struct CapillaryTube {
     pub length_um: f64,
 }
 
+impl CapillaryTube {
+    /// Inner diameter, m.
+    pub fn diameter_m(&self) -> f64 {
+        um_to_m(self.diameter_um)
+    }
+
+    /// Length along the periodic axis, m.
+    pub fn length_m(&self) -> f64 {
+        um_to_m(self.length_um)
+    }
+}
+
 /// `[plasma]`: the fluids.
 #[derive(Clone, Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
@@ -168,90 +106,14 @@ pub struct PlasmaSection {
     pub viscosity_ratio: f64,
 }
 
-/// `[cell]`: the membrane (parameters from N by the paper's Eqs. 8, 9, 12).
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct CellSection {
-    /// Vertices N ≥ 100 (default 500).
-    #[serde(default = "d_n")]
-    pub vertices: i64,
-    /// Temperature, K (default 300, the paper's).
-    #[serde(default = "d_temp")]
-    pub temperature_k: f64,
-    /// "stress-free" (default) or "uniform" (the paper's single L0).
-    #[serde(default)]
-    pub reference: ReferenceState,
-    /// Multiplies the Eq. 12 persistence length (default 1).
-    #[serde(default = "d_one")]
-    pub persistence_scale: f64,
-    /// k_a, N/m (default 2e-3).
-    #[serde(default = "d_ka")]
-    pub area_constraint_n_per_m: f64,
-    /// k_v, N/m² (default 1e3).
-    #[serde(default = "d_kv")]
-    pub volume_constraint_n_per_m2: f64,
-    /// A mesh in µm instead of the generated one (its vertex count must equal `vertices`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub mesh_file: Option<PathBuf>,
-    /// 2D membrane viscosity η_m, Pa·s·m = N·s/m (default 0: off, the paper's model;
-    /// physiological ≈ 5e-7–1e-6). Fedosov's link friction with γ_C = γ_T/3 (docs/model.md).
-    #[serde(default)]
-    pub membrane_viscosity_pa_s_m: f64,
-    /// How η_m becomes link friction: "fedosov" (default: γ_C = γ_T/3) or "central" (γ_T = 0,
-    /// γ_C = 4η_m/√3: resists only the links' stretching, not rigid rotation or bending).
-    #[serde(default)]
-    pub membrane_viscosity_form: ViscosityForm,
-}
-
-/// How the membrane viscosity η_m is split into link friction (docs/model.md §7b).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum ViscosityForm {
-    /// Fedosov et al. 2010: γ_C = γ_T/3 (the relative velocity's whole vector is damped).
-    #[default]
-    Fedosov,
-    /// γ_T = 0, γ_C = 4η_m/√3 (Mirheo's form: only the component along the link is damped).
-    Central,
-}
-
-/// `[model]`: how SI maps onto the DPD model (docs/units.md).
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct ModelSection {
-    /// µm per rc (default 1).
-    #[serde(default = "d_one")]
-    pub length_um_per_rc: f64,
-    /// "auto" (default: the smallest thermal factor f ≥ 1 that keeps the Mach number at the
-    /// fastest stage's velocity ≤ `max_mach`), "exact" (f = 1) or a number f ≥ 1.
-    #[serde(default = "d_thermal")]
-    pub thermal_factor: ThermalSetting,
-    /// Mach bound for "auto" (default 0.25, the largest allowed).
-    #[serde(default = "d_mach")]
-    pub max_mach: f64,
-    /// Model time step (default: the capillary fluid's, 0.0025).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub timestep: Option<f64>,
-    /// Steps between inside/outside checks of the fluid (default 500; 0: never).
-    #[serde(default = "d_check")]
-    pub crossing_check_every_steps: u64,
-    /// Range of the membrane–wall repulsion, rc (default 0.3).
-    #[serde(default = "d_range")]
-    pub wall_repulsion_range_rc: f64,
-    /// Steps between updates of the mean-velocity controller (default 50).
-    #[serde(default = "d_control")]
-    pub flow_control_every_steps: u64,
-    /// How fluid leaves the membrane after crossing a triangle: "maxwell" (default: diffuse,
-    /// at the fluid's temperature) or "bounce-back" (v → 2u_w − v; unstable when thermal
-    /// creases trap particles, docs/capillary.md).
-    #[serde(default)]
-    pub membrane_reflection: MembraneReflection,
-    /// Membrane sub-steps k per fluid step: an integer 1–1000 (default 1: none, the membrane
-    /// integrated with the fluid) or "auto": the smallest k with (γ_T + γ_C)(Δt/k)/μ ≤ 1 when
-    /// `cell.membrane_viscosity_pa_s_m` > 0 (μ the reduced mass of a link, half a vertex mass),
-    /// else 1. One Shardlow sweep per Δt caps the link friction near 2μ/Δt, 25 × below a
-    /// physiological η_m at the default Δt; "auto" (50 there) lifts the cap (docs/model.md §7b).
-    #[serde(default = "d_substeps")]
-    pub membrane_substeps: SubstepSetting,
+crate::cell::section::model_section! {
+    /// `[model]`: how SI maps onto the DPD model (docs/units.md): the keys of every cell-in-flow
+    /// kind, and the flow controller's.
+    ModelSection {
+        /// Steps between updates of the mean-velocity controller (default 50).
+        #[serde(default = "d_control")]
+        pub flow_control_every_steps: u64,
+    }
 }
 
 /// One `[[stage]]` of the protocol. A stage drives the flow with at most one of the three
@@ -374,7 +236,7 @@ impl CapillaryScenario {
     /// The fastest stage's mean velocity (a target, or the Poiseuille estimate of a pressure
     /// gradient), m/s; the unit mapping is chosen for it.
     pub fn characteristic_velocity(&self) -> f64 {
-        let d = self.tube.diameter_um * 1e-6;
+        let d = self.tube.diameter_m();
         self.stage
             .iter()
             .map(|s| match s.drive() {
@@ -390,8 +252,8 @@ impl CapillaryScenario {
         let p = self.params()?;
         let mut sys = PhysicalSystem::new(
             &p,
-            self.tube.diameter_um * 1e-6,
-            self.tube.length_um * 1e-6,
+            self.tube.diameter_m(),
+            self.tube.length_m(),
             self.plasma.viscosity_pa_s,
             self.characteristic_velocity().max(1e-9),
         );
@@ -410,7 +272,7 @@ impl CapillaryScenario {
         let m = UnitMapping::choose(
             &sys,
             &FluidModel::capillary(),
-            self.model.length_um_per_rc * 1e-6,
+            um_to_m(self.model.length_um_per_rc),
             self.thermal(),
         )
         .map_err(|e| RunError::Output(format!("unit mapping: {e}")))?;
@@ -424,163 +286,8 @@ impl CapillaryScenario {
     }
 }
 
-/// The membrane parameters of level N of a `[cell]` section.
-pub(crate) fn cell_params(cell: &CellSection) -> Result<ModelParams, RunError> {
-    Ok(ModelParams::with_persistence_scale(
-        cell.vertices as usize,
-        cell.temperature_k,
-        cell.persistence_scale,
-    )?)
-}
-
-/// The [`ThermalChoice`] of a `model.thermal_factor` setting.
-pub(crate) fn thermal_choice(setting: &ThermalSetting, max_mach: f64) -> ThermalChoice {
-    match setting {
-        ThermalSetting::Factor(f) => ThermalChoice::Factor(*f),
-        ThermalSetting::Word(w) => match w.trim() {
-            "auto" => ThermalChoice::Auto { max_mach },
-            "exact" => ThermalChoice::Exact,
-            s => ThermalChoice::Factor(s.parse().unwrap_or(f64::NAN)),
-        },
-    }
-}
-
-/// Validates a `[cell]` section (shared by the kinds with a cell in flow).
-pub(crate) fn validate_cell(cell: &CellSection, file: &str) -> Result<(), ScenarioError> {
-    let c = crate::file::Check { file };
-    let fail = |key: &str, value: String, allowed: &str| c.fail(key, value, allowed);
-    let range = |key: &str, v: f64, lo: f64, hi: f64, allowed: &str| c.range(key, v, lo, hi, allowed);
-    if cell.vertices < 100 || cell.vertices > 50_000 {
-        return Err(fail(
-            "cell.vertices",
-            cell.vertices.to_string(),
-            "100–50000 (the coarse-grained model needs N ≥ 100)",
-        ));
-    }
-    range("cell.temperature_k", cell.temperature_k, 250.0, 350.0, "250–350 K")?;
-    range("cell.persistence_scale", cell.persistence_scale, 0.5, 2.0, "0.5–2")?;
-    range(
-        "cell.membrane_viscosity_pa_s_m",
-        cell.membrane_viscosity_pa_s_m,
-        0.0,
-        f64::MAX,
-        "≥ 0 and finite, Pa·s·m = N·s/m (0: off; physiological ≈ 5e-7–1e-6)",
-    )?;
-    range(
-        "cell.area_constraint_n_per_m",
-        cell.area_constraint_n_per_m,
-        0.0,
-        1.0,
-        "0–1 N/m",
-    )?;
-    range(
-        "cell.volume_constraint_n_per_m2",
-        cell.volume_constraint_n_per_m2,
-        0.0,
-        1e6,
-        "0–1e6 N/m²",
-    )
-}
-
-/// Validates `model.thermal_factor` and `model.max_mach`.
-pub(crate) fn validate_thermal(setting: &ThermalSetting, max_mach: f64, file: &str) -> Result<(), ScenarioError> {
-    let thermal_ok = match setting {
-        ThermalSetting::Factor(f) => f.is_finite() && *f >= 1.0,
-        ThermalSetting::Word(w) => matches!(w.trim(), "auto" | "exact"),
-    };
-    if !thermal_ok {
-        return Err(ScenarioError::Value {
-            file: file.into(),
-            key: "model.thermal_factor".into(),
-            value: setting.to_string(),
-            allowed: "\"auto\", \"exact\" or a number ≥ 1".into(),
-        });
-    }
-    if !(max_mach.is_finite() && (1e-3..=units::MACH_LIMIT).contains(&max_mach)) {
-        return Err(ScenarioError::Value {
-            file: file.into(),
-            key: "model.max_mach".into(),
-            value: format!("{max_mach}"),
-            allowed: "(0, 0.25]".into(),
-        });
-    }
-    Ok(())
-}
-
 /// Validates the capillary section of a file: every value, the cell fitting the tube, the
-/// stages, and the unit mapping (Mach and Reynolds bounds), before any work.
-/// Largest `model.membrane_substeps`.
-pub(crate) const MAX_SUBSTEPS: i64 = 1000;
-
-/// Checks `model.membrane_substeps`.
-pub(crate) fn validate_substeps(k: &SubstepSetting, file: &str) -> Result<(), ScenarioError> {
-    let ok = match k {
-        SubstepSetting::Count(k) => (1..=MAX_SUBSTEPS).contains(k),
-        SubstepSetting::Word(w) => w == "auto",
-    };
-    if ok {
-        Ok(())
-    } else {
-        Err(ScenarioError::Value {
-            file: file.into(),
-            key: "model.membrane_substeps".into(),
-            value: k.to_string(),
-            allowed: format!(
-                "an integer 1–{MAX_SUBSTEPS} (1, the default: no sub-stepping) or \"auto\" (from the membrane viscosity)"
-            ),
-        })
-    }
-}
-
-/// The membrane sub-steps k of a run: the count when given, else ("auto") the smallest k with
-/// (γ_T + γ_C)(Δt/k)/μ ≤ 1 for a link of two vertices of mass `vertex_mass` (μ = m/2; at most
-/// [`MAX_SUBSTEPS`]), or 1 without a membrane viscosity. The setting is validated first.
-pub(crate) fn resolve_substeps(
-    setting: &SubstepSetting,
-    visc: Option<&MembraneViscosity>,
-    dt: f64,
-    vertex_mass: f64,
-) -> u32 {
-    match (setting, visc) {
-        (SubstepSetting::Count(k), _) => (*k).clamp(1, MAX_SUBSTEPS) as u32,
-        (SubstepSetting::Word(_), Some(v)) => {
-            let mu = 0.5 * vertex_mass;
-            let k = ((v.gamma_t + v.gamma_c) * dt / mu).ceil();
-            k.clamp(1.0, MAX_SUBSTEPS as f64) as u32
-        }
-        (SubstepSetting::Word(_), None) => 1,
-    }
-}
-
-/// The `membrane_viscosity` block of a cell run's summary: η_m in SI and model units, the
-/// friction coefficients, the sub-steps, and the effective link friction of the scheme
-/// γ_eff = μ/(h(a/(1 − a) + ½)), a = exp(−(γ_T + γ_C)h/μ), h = Δt/k, as a fraction of γ_T + γ_C.
-pub(crate) fn membrane_viscosity_summary(
-    eta_si: f64,
-    shear_modulus_n_per_m: f64,
-    visc: Option<&MembraneViscosity>,
-    substeps: u32,
-    dt: f64,
-) -> serde_json::Value {
-    let mu = 0.5 * VERTEX_MASS;
-    let h = dt / substeps as f64;
-    let fraction = visc.map(|v| {
-        let g = v.gamma_t + v.gamma_c;
-        let a = (-g * h / mu).exp();
-        mu / (h * (a / (1.0 - a) + 0.5)) / g
-    });
-    json!({
-        "pa_s_m": eta_si,
-        "model": visc.map(|v| v.eta()).unwrap_or(0.0),
-        "gamma_t": visc.map(|v| v.gamma_t).unwrap_or(0.0),
-        "gamma_c": visc.map(|v| v.gamma_c).unwrap_or(0.0),
-        "kelvin_voigt_time_s": eta_si / shear_modulus_n_per_m,
-        "substeps": substeps,
-        "effective_friction_fraction": fraction,
-        "note": "2D membrane viscosity η_m (0: off, the paper's model); model units E τ/r²; Fedosov's link friction with γ_C = γ_T/3, η_m = √3 γ_T + √3 γ_C/4; η_m/μ0 is the Kelvin–Voigt time of the membrane alone; substeps: membrane sub-steps per fluid step (model.membrane_substeps); effective_friction_fraction: the link friction the scheme acts with on slow motion, over γ_T + γ_C (null without viscosity; docs/model.md §7b)",
-    })
-}
-
+/// stages, and the unit mapping (Mach and Reynolds bounds, by building the [`Plan`]), before any work.
 pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> {
     let c = crate::file::Check { file };
     let fail = |key: &str, value: String, allowed: &str| c.fail(key, value, allowed);
@@ -596,30 +303,10 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
     )?;
     range("plasma.viscosity_ratio", s.plasma.viscosity_ratio, 0.1, 20.0, "0.1–20")?;
     validate_cell(&s.cell, file)?;
-    range(
-        "model.length_um_per_rc",
-        s.model.length_um_per_rc,
-        0.25,
-        2.0,
-        "0.25–2 µm per rc",
-    )?;
-    validate_thermal(&s.model.thermal_factor, s.model.max_mach, file)?;
-    if let Some(dt) = s.model.timestep {
-        range(
-            "model.timestep",
-            dt,
-            1e-4,
-            0.004,
-            "1e-4–0.004 model units (default 0.0025): the capillary fluid keeps its temperature up to 0.004 and runs 9 % hot at 0.005 (docs/units.md)",
-        )?;
-    }
-    validate_substeps(&s.model.membrane_substeps, file)?;
-    range(
-        "model.wall_repulsion_range_rc",
-        s.model.wall_repulsion_range_rc,
-        0.05,
-        1.0,
-        "0.05–1 rc",
+    validate_model(
+        s.model.shared(),
+        "1e-4–0.004 model units (default 0.0025): the capillary fluid keeps its temperature up to 0.004 and runs 9 % hot at 0.005 (docs/units.md)",
+        file,
     )?;
     if s.model.flow_control_every_steps == 0 {
         return Err(fail("model.flow_control_every_steps", "0".into(), "≥ 1"));
@@ -708,7 +395,7 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
         ));
     }
     // the unit mapping's own bounds (Mach, Reynolds), with the key of the scenario
-    if let Err(e) = s.mapping() {
+    if let Err(e) = Plan::new(s) {
         let (key, value) = if s.characteristic_velocity() > 0.0 {
             (
                 "stage.mean_velocity_m_per_s",
@@ -753,8 +440,8 @@ impl<'a> Plan<'a> {
         let (sys, map) = s.mapping()?;
         let fluid = FluidModel::capillary();
         let dt = s.model.timestep.unwrap_or(fluid.timestep);
-        let radius = map.length_to_model(0.5 * s.tube.diameter_um * 1e-6);
-        let length = map.length_to_model(s.tube.length_um * 1e-6);
+        let radius = map.length_to_model(0.5 * s.tube.diameter_m());
+        let length = map.length_to_model(s.tube.length_m());
         let rc = fluid.pair.rc;
         let wall_r = wall_radius(radius, CAPILLARY_FLUID_WALL_SLIP);
         // wall thickness rc plus half an rc of margin on each side
@@ -796,10 +483,6 @@ impl<'a> Plan<'a> {
         })
     }
 
-    fn config(&self) -> SimConfig {
-        SimConfig::new(self.box_lengths, self.dt, self.s.seed)
-    }
-
     /// Steps of the whole protocol at most.
     pub fn max_steps(&self) -> u64 {
         self.stage_steps.iter().sum()
@@ -808,26 +491,6 @@ impl<'a> Plan<'a> {
     /// The tube axis point (x, y) the cell is centred on, and the z of its centre.
     fn cell_centre(&self) -> DVec3 {
         DVec3::new(0.5 * self.box_lengths.x, 0.5 * self.box_lengths.y, 0.5 * self.length)
-    }
-
-    /// The force field (see the module docs).
-    fn field(&self, vertex_density: f64) -> Result<ForceField, RunError> {
-        cell_fluid_field(
-            &self.fluid,
-            self.s.plasma.viscosity_ratio,
-            vertex_density,
-            self.substeps,
-        )
-    }
-
-    fn wall_config(&self) -> WallConfig {
-        WallConfig {
-            reflection: Reflection::BounceBack,
-            bins: 5,
-            rc: self.fluid.pair.rc,
-            adapt: false,
-            ..WallConfig::default()
-        }
     }
 
     /// The resting mesh in µm (generated and cached, or the user's), on its principal axes.
@@ -851,27 +514,6 @@ impl<'a> Plan<'a> {
         membrane_model(&self.s.cell, &self.map, rest)
     }
 
-    fn cell_config(&self, first: usize) -> CellConfig {
-        let rc = self.fluid.pair.rc;
-        // the repulsion at contact: a few times the largest force a plasma pair exerts (a)
-        CellConfig {
-            first,
-            outer_type: OUTER,
-            inner_type: INNER,
-            check_every: self.s.model.crossing_check_every_steps,
-            wall: Some(WallRepulsion {
-                shape: self.shape,
-                range: self.s.model.wall_repulsion_range_rc * rc,
-                strength: 4.0 * self.fluid.pair.a,
-            }),
-            reflection: self.s.model.membrane_reflection,
-            kbt: self.fluid.pair.kbt,
-            seed: self.s.seed,
-            viscosity: self.membrane_viscosity(),
-            substeps: self.substeps,
-        }
-    }
-
     /// The membrane viscosity in model units (Fedosov's γ_C = γ_T/3), or `None` when
     /// `cell.membrane_viscosity_pa_s_m` is 0.
     pub fn membrane_viscosity(&self) -> Option<MembraneViscosity> {
@@ -889,119 +531,40 @@ impl<'a> Plan<'a> {
     }
 }
 
-/// The membrane viscosity of a `[cell]` section in model units (None when 0: the paper's model).
-pub(crate) fn cell_membrane_viscosity(cell: &CellSection, map: &UnitMapping) -> Option<MembraneViscosity> {
-    let eta = cell.membrane_viscosity_pa_s_m;
-    (eta > 0.0).then(|| {
-        let eta_model = map.membrane_viscosity_to_model(eta);
-        match cell.membrane_viscosity_form {
-            ViscosityForm::Fedosov => MembraneViscosity::from_eta(eta_model),
-            ViscosityForm::Central => MembraneViscosity::central_from_eta(eta_model),
-        }
-    })
-}
-
-/// Mass of a membrane vertex (model units; the fluid's).
-pub(crate) const VERTEX_MASS: f64 = 1.0;
-
-/// The force field of a cell in plasma (types [`OUTER`], [`WALL`], [`INNER`], [`MEMBRANE`];
-/// see the module docs): the inner fluid's γ is the outer's times `viscosity_ratio`, the
-/// membrane's friction with each side gives no slip for that side's viscosity. With
-/// `substeps` > 1 the membrane type is integrated by the cell, not the engine.
-pub(crate) fn cell_fluid_field(
-    fluid: &FluidModel,
-    viscosity_ratio: f64,
-    vertex_density: f64,
-    substeps: u32,
-) -> Result<ForceField, RunError> {
-    let p = fluid.pair;
-    let (eta_o, eta_i) = (fluid.viscosity, fluid.viscosity * viscosity_ratio);
-    // inner γ: η ∝ γ for this fluid (the kinetic part is 0.2 % of η), so the ratio of the
-    // viscosities is the ratio of the γ's to that accuracy (docs/capillary.md)
-    let inner = PairParams {
-        gamma: p.gamma * viscosity_ratio,
-        ..p
-    };
-    let fsi = |eta: f64| PairParams {
-        a: 0.0,
-        gamma: units::fsi_friction(eta, fluid.density, vertex_density, p.s, p.rc),
-        ..p
-    };
-    // no interaction and a zero cutoff: the pair loop never lists these pairs (with rc kept,
-    // every wall–wall and vertex–vertex pair within rc was evaluated to an exact zero)
-    let none = PairParams::none();
-    let mut f = ForceField::new(
-        vec![
-            TypeSpec::new("plasma"),
-            TypeSpec::frozen("wall"),
-            TypeSpec::new("cytosol"),
-            TypeSpec::new("membrane"),
-        ],
-        p,
-    )
-    .map_err(engine_err)?;
-    let set = |f: &mut ForceField, a: u16, b: u16, q: PairParams| f.set_pair(a as usize, b as usize, q);
-    set(&mut f, WALL, WALL, none).map_err(engine_err)?;
-    set(&mut f, INNER, INNER, inner).map_err(engine_err)?;
-    set(&mut f, INNER, WALL, inner).map_err(engine_err)?;
-    set(
-        &mut f,
-        INNER,
-        OUTER,
-        PairParams {
-            gamma: 0.0,
-            kbt: 0.0,
-            ..p
-        },
-    )
-    .map_err(engine_err)?;
-    set(&mut f, MEMBRANE, OUTER, fsi(eta_o)).map_err(engine_err)?;
-    set(&mut f, MEMBRANE, WALL, fsi(eta_o)).map_err(engine_err)?;
-    set(&mut f, MEMBRANE, INNER, fsi(eta_i)).map_err(engine_err)?;
-    set(&mut f, MEMBRANE, MEMBRANE, none).map_err(engine_err)?;
-    if let Some(t) = f.type_mut(MEMBRANE as usize) {
-        t.mass = VERTEX_MASS;
-        t.integrated_by_extension = substeps > 1;
+impl CellPlan for Plan<'_> {
+    fn cell(&self) -> &CellSection {
+        &self.s.cell
     }
-    Ok(f)
-}
-
-/// The resting mesh of a `[cell]` section in µm (generated and cached, or the user's), on its
-/// principal axes (symmetry axis y), and where it came from.
-pub(crate) fn cell_mesh_um(
-    cell: &CellSection,
-    seed: u64,
-    base_dir: &std::path::Path,
-) -> Result<(Mesh, serde_json::Value), RunError> {
-    match &cell.mesh_file {
-        Some(f) => {
-            let path = base_dir.join(f);
-            let (mesh, pose) = mesh_cache::user_mesh(&path)?;
-            Ok((mesh, json!({ "source": "file", "path": path, "pose_change": pose })))
-        }
-        None => {
-            let (mesh, origin) = mesh_cache::relaxed_mesh(cell.vertices as usize, seed)?;
-            Ok((mesh, json!({ "source": "generated", "origin": origin })))
-        }
+    fn model_keys(&self) -> ModelKeys<'_> {
+        self.s.model.shared()
     }
-}
-
-/// The membrane model of a `[cell]` section in model units (`map`) on the resting mesh `rest`
-/// (model units).
-pub(crate) fn membrane_model(cell: &CellSection, map: &UnitMapping, rest: &Mesh) -> Result<MembraneModel, RunError> {
-    let params = cell_params(cell)?;
-    let c = MembraneConstants::from_params(
-        &params,
-        map.length_m,
-        map.energy_j,
-        cell.area_constraint_n_per_m,
-        cell.volume_constraint_n_per_m2,
-    );
-    let topo = rest.topology()?;
-    Ok(match cell.reference {
-        ReferenceState::Uniform => MembraneModel::uniform(&topo, &c, rest.area(), rest.volume())?,
-        ReferenceState::StressFree => MembraneModel::stress_free(&topo, &rest.vertices, &c)?,
-    })
+    fn map(&self) -> &UnitMapping {
+        &self.map
+    }
+    fn fluid(&self) -> &FluidModel {
+        &self.fluid
+    }
+    fn viscosity_ratio(&self) -> f64 {
+        self.s.plasma.viscosity_ratio
+    }
+    fn substeps(&self) -> u32 {
+        self.substeps
+    }
+    fn dt(&self) -> f64 {
+        self.dt
+    }
+    fn seed(&self) -> u64 {
+        self.s.seed
+    }
+    fn box_lengths(&self) -> DVec3 {
+        self.box_lengths
+    }
+    fn sim_config(&self) -> SimConfig {
+        SimConfig::new(self.box_lengths, self.dt, self.s.seed)
+    }
+    fn wall_shape(&self) -> Option<WallShape> {
+        Some(self.shape)
+    }
 }
 
 /// The wall radius R_w whose flow carries the flux of a no-slip tube of radius `radius` when
@@ -1023,95 +586,15 @@ fn flux_velocity(plan: &Plan, particle_mean: f64) -> f64 {
     particle_mean * (plan.wall_radius / plan.radius).powi(2)
 }
 
-/// An engine error with the particle type named (membrane vertex, fluid particle, ...).
-pub fn describe_engine_error(e: hemodpd_engine::EngineError) -> RunError {
-    use hemodpd_engine::EngineError as E;
-    let part = |t: u16| match t {
-        OUTER => "a plasma particle",
-        INNER => "a cytosol particle",
-        MEMBRANE => "a membrane vertex",
-        _ => "a wall particle",
-    };
-    let hint = |t: u16| {
-        match t {
-        MEMBRANE => "likely cause: the membrane is too stiff for the time step (lower model.timestep) or the drive is beyond the scenario's bounds",
-        _ => "likely cause: the drive is too strong for the fluid (Mach number) or the time step is too large",
-    }
-    };
-    match &e {
-        E::NonFinite { ptype, .. } | E::TooFast { ptype, .. } => {
-            RunError::Engine(format!("{e} — the part is {}; {}", part(*ptype), hint(*ptype)))
-        }
-        _ => RunError::Engine(e.to_string()),
-    }
-}
+/// The simulation of a capillary run (its walls are always there).
+pub type CapillarySim = CellSim;
 
-/// The simulation of a capillary run.
-pub type CapillarySim = Simulation<(Timed<Walls>, Cell)>;
-
-/// Builds the simulation at step 0.
 /// Fraction of the vertices at each end that a stage's `stretch_force_n` pulls (the paper's
 /// optical-tweezers contact, as in the stretching scenario).
 const STRETCH_END_FRACTION: f64 = 0.05;
 
-/// Steps of the membrane's dry run before a capillary run ([`hemodpd_membrane::coupling::dry_run`]).
-const DRY_RUN_STEPS: u64 = 400;
-
-/// Checks, before any fluid is built, that the time step resolves the membrane: a dry run of
-/// the membrane alone at the fluid's kBT. On failure the error names `model.timestep`, the
-/// step the dry run failed at and the largest time step (halving) that passed.
-fn check_membrane_timestep(plan: &Plan, model: &MembraneModel, rest: &Mesh) -> Result<(), RunError> {
-    let visc = plan.membrane_viscosity();
-    check_membrane_timestep_for(
-        plan.dt,
-        plan.substeps,
-        plan.fluid.pair.kbt,
-        plan.map.thermal_factor,
-        visc.as_ref(),
-        model,
-        rest,
-    )
-}
-
-/// [`check_membrane_timestep`] for a time step `dt` with `substeps` membrane sub-steps (the
-/// dry run takes the membrane's own step dt/substeps), the fluid's `kbt`, thermal factor `f`
-/// and the membrane viscosity (if any).
-pub(crate) fn check_membrane_timestep_for(
-    dt_fluid: f64,
-    substeps: u32,
-    kbt: f64,
-    f: f64,
-    visc: Option<&MembraneViscosity>,
-    model: &MembraneModel,
-    rest: &Mesh,
-) -> Result<(), RunError> {
-    let mass = VERTEX_MASS;
-    let k = substeps.max(1);
-    let dt0 = dt_fluid / k as f64;
-    let dry = |dt: f64| hemodpd_membrane::coupling::dry_run(model, &rest.vertices, dt, kbt, mass, visc, DRY_RUN_STEPS);
-    let Some(step) = dry(dt0) else {
-        return Ok(());
-    };
-    if k > 1 {
-        return Err(RunError::Output(format!(
-            "model.timestep = {dt_fluid} with model.membrane_substeps = {k} is too fast for the membrane: a dry run of the membrane alone (no fluid, thermal velocities) at its inner step {dt0:.3e} became unstable at step {step} of {DRY_RUN_STEPS}; likely cause: the membrane's stiffest mode (its moduli in model units grow as the thermal factor falls: f = {f:.3}); raise model.membrane_substeps or lower model.timestep"
-        )));
-    }
-    let mut dt = dt0;
-    let stable = (0..8).find_map(|_| {
-        dt *= 0.5;
-        dry(dt).is_none().then_some(dt)
-    });
-    let advice = match stable {
-        Some(dt) => format!("set model.timestep ≤ {dt:.2e} (the largest halving of it that passed)"),
-        None => "no time step down to 1/256 of it passed: check cell.area_constraint_n_per_m and cell.volume_constraint_n_per_m2".into(),
-    };
-    Err(RunError::Output(format!(
-        "model.timestep = {} is too large for the membrane: a dry run of the membrane alone (no fluid, thermal velocities) became unstable at step {step} of {DRY_RUN_STEPS}; likely cause: the time step cannot resolve the membrane's stiffest mode (its moduli in model units grow as the thermal factor falls: f = {:.3}); {advice}",
-        dt0, f
-    )))
-}
-
+/// Builds the simulation at step 0: the tube's walls cut from an equilibrated fluid, the cell
+/// on the axis.
 fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunError> {
     {
         // before the fluid is built: cheap, and it names the fix
@@ -1119,7 +602,6 @@ fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunErro
         let model = plan.model(&rest)?;
         check_membrane_timestep(plan, &model, &rest)?;
     }
-    let config = plan.config();
     let setup = WallSetup {
         shape: plan.shape,
         pair: plan.fluid.pair,
@@ -1127,30 +609,10 @@ fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunErro
         thickness: plan.fluid.pair.rc,
         equilibration_steps: 200,
     };
-    let (_, base) = walls::build(&config, &setup, plan.s.seed).map_err(engine_err)?;
+    let (_, base) = walls::build(&plan.sim_config(), &setup, plan.s.seed).map_err(engine_err)?;
     let (rest, info) = plan.rest_mesh()?;
     let model = plan.model(&rest)?;
-    let vertex_density = rest.vertices.len() as f64 / rest.area();
-    let field = plan.field(vertex_density)?;
-    let mut p = Particles::with_capacity(base.len() + rest.vertices.len());
-    let mut max_id = 0u32;
-    for i in 0..base.len() {
-        let mut t = base.ptype[i];
-        if t == walls::FLUID_TYPE && hemodpd_membrane::mesh::contains(base.pos[i], &rest.vertices, &rest.triangles) {
-            t = INNER;
-        }
-        let t = if t == walls::WALL_TYPE { WALL } else { t };
-        p.push(base.pos[i], base.vel[i], t, base.id[i]);
-        max_id = max_id.max(base.id[i]);
-    }
-    let first = p.len();
-    for (k, v) in rest.vertices.iter().enumerate() {
-        p.push(*v, DVec3::ZERO, MEMBRANE, max_id + 1 + k as u32);
-    }
-    let walls_ext = Walls::new(plan.shape, plan.wall_config()).map_err(engine_err)?;
-    let cell = Cell::new(model, plan.cell_config(first), rest.vertices.clone()).map_err(engine_err)?;
-    let sim =
-        Simulation::with_extension(config, field, p, (Timed::new(walls_ext), cell)).map_err(describe_engine_error)?;
+    let sim = place_cell(plan, &base, &rest, model, None)?;
     Ok((sim, rest, info))
 }
 
@@ -1586,119 +1048,24 @@ impl Run<'_> {
     fn save(&mut self, ctx: &RunContext) -> Result<(), RunError> {
         self.st.stepping_seconds += self.clock.elapsed().as_secs_f64();
         self.clock = std::time::Instant::now();
-        let sim = &self.sim;
-        let mut ck = Checkpoint::new(sim.step_count(), sim.time(), self.plan.s.seed, self.plan.toml.clone());
-        ck.set_scalar("scenario_kind", ScalarValue::Str("capillary".into()));
-        ck.set_scalar(
-            "base_dir",
-            ScalarValue::Str(self.plan.s.base_dir.to_string_lossy().into_owned()),
-        );
-        ck.set_scalar(
-            "finished",
-            ScalarValue::Str(if self.st.finished { "yes" } else { "no" }.into()),
-        );
-        particles_into_checkpoint(&mut ck, sim.particles());
-        let (walls_ext, cell) = sim.extension();
-        run_dir::json_into_checkpoint(&mut ck, "walls_state_json", &walls_ext.inner.state())?;
-        run_dir::json_into_checkpoint(&mut ck, "progress_json", &self.st)?;
-        cell_into_checkpoint(&mut ck, cell, &self.rest, &self.mesh_info)?;
-        run_dir::save_checkpoint(&ck, ctx)
+        let head = CheckpointHead {
+            kind: "capillary",
+            seed: self.plan.s.seed,
+            toml: &self.plan.toml,
+            base_dir: &self.plan.s.base_dir,
+            finished: Some(self.st.finished),
+        };
+        save_cell_run(&self.sim, &head, &self.st, &self.rest, &self.mesh_info, ctx)
     }
 }
 
-/// The cell's crossing statistics for `summary.json`.
-pub(crate) fn crossings_json(stats: &hemodpd_membrane::coupling::CellStats) -> serde_json::Value {
-    json!({
-        "bounces": stats.bounces,
-        "checks": stats.checks,
-        "misplaced_total": stats.misplaced,
-        "misplaced_last_check": stats.misplaced_last,
-        "checked_last": stats.checked_last,
-        "note": "fluid particles found on the wrong side of the membrane by the inside test every model.crossing_check_every_steps steps (target 0)",
-    })
-}
-
-/// Shares of `session_s` seconds of stepping: the cell's timers, the walls, sampling and
-/// frames, and the remainder (the fluid's pair forces, the integrator, the cell lists).
-pub(crate) fn step_shares(
-    session_s: f64,
-    timers: &hemodpd_membrane::coupling::CellTimers,
-    walls_s: f64,
-    output_s: f64,
-) -> serde_json::Value {
-    let known = timers.bounce_s + timers.membrane_forces_s + timers.checks_s + timers.viscosity_s + walls_s + output_s;
-    json!({
-        "fluid_pairs_and_integration": (session_s - known) / session_s,
-        "bounce_back": timers.bounce_s / session_s,
-        "membrane_forces": timers.membrane_forces_s / session_s,
-        "membrane_viscosity": timers.viscosity_s / session_s,
-        "walls": walls_s / session_s,
-        "crossing_checks": timers.checks_s / session_s,
-        "sampling_and_frames": output_s / session_s,
-    })
-}
-
-/// Saves what a cell-in-flow run needs to rebuild its cell: the cell's state, the resting mesh
-/// it was built on (topology and reference state) and where the mesh came from.
-pub(crate) fn cell_into_checkpoint(
-    ck: &mut Checkpoint,
-    cell: &Cell,
-    rest: &Mesh,
-    mesh_info: &serde_json::Value,
-) -> Result<(), RunError> {
-    run_dir::json_into_checkpoint(ck, "cell_state_json", &cell.state())?;
-    ck.insert_vec3("membrane_rest_vertices", &rest.vertices);
-    ck.insert_u32("membrane_triangles", rest.triangles.iter().flatten().copied().collect());
-    run_dir::json_into_checkpoint(ck, "mesh_info_json", mesh_info)
-}
-
-/// The resting mesh saved by [`cell_into_checkpoint`].
-pub(crate) fn rest_mesh_from_checkpoint(ck: &Checkpoint) -> Result<Mesh, RunError> {
-    let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
-    let verts = ck.vec3s("membrane_rest_vertices", None).map_err(bad)?;
-    let tri_flat = ck.u32s("membrane_triangles").map_err(bad)?;
-    let triangles: Vec<[u32; 3]> = tri_flat.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
-    Ok(Mesh::new(verts, triangles)?)
-}
-
-fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(CapillarySim, Mesh, ProtocolState, serde_json::Value), RunError> {
-    let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
-    let kind = ck.scalar_str("scenario_kind").map_err(bad)?;
-    if kind != "capillary" {
-        return Err(RunError::Output(format!("checkpoint of a {kind} run, not capillary")));
-    }
-    let particles = particles_from_checkpoint(ck)?;
-    let rest = rest_mesh_from_checkpoint(ck)?;
-    let model = plan.model(&rest)?;
-    let vertex_density = rest.vertices.len() as f64 / rest.area();
-    let field = plan.field(vertex_density)?;
-    let first = particles
-        .ptype
-        .iter()
-        .position(|&t| t == MEMBRANE)
-        .ok_or_else(|| RunError::Output("checkpoint: no membrane vertices".into()))?;
-    let cs: CellState = run_dir::json_from_checkpoint(ck, "cell_state_json")?;
-    let cell = Cell::new(model, plan.cell_config(first), rest.vertices.clone())
-        .and_then(|c| c.with_state(cs))
-        .map_err(engine_err)?;
-    let ws: WallsState = run_dir::json_from_checkpoint(ck, "walls_state_json")?;
-    let domain = PeriodicBox::new(plan.box_lengths).map_err(engine_err)?;
-    let walls_ext = Walls::new(plan.shape, plan.wall_config())
-        .and_then(|w| w.with_state(ws, &domain))
-        .map_err(engine_err)?;
-    let state = SimState {
-        config: plan.config(),
-        field,
-        particles,
-        step: ck.step,
-    };
-    let mut sim = Simulation::from_state(state, (Timed::new(walls_ext), cell)).map_err(engine_err)?;
-    let st: ProtocolState = run_dir::json_from_checkpoint(ck, "progress_json")?;
-    let f = DVec3::new(0.0, 0.0, st.body_force);
-    sim.set_body_force(OUTER as usize, f).map_err(engine_err)?;
-    sim.set_body_force(INNER as usize, f).map_err(engine_err)?;
-    let info: serde_json::Value = run_dir::json_from_checkpoint(ck, "mesh_info_json")?;
-    Ok((sim, rest, st, info))
+/// The run saved in `ck`, with the body force of its protocol state set again.
+fn restore(plan: &Plan, ck: &Checkpoint) -> Result<Restored<ProtocolState>, RunError> {
+    let mut r: Restored<ProtocolState> = restore_cell_run(plan, "capillary", ck)?;
+    let f = DVec3::new(0.0, 0.0, r.progress.body_force);
+    r.sim.set_body_force(OUTER as usize, f).map_err(engine_err)?;
+    r.sim.set_body_force(INNER as usize, f).map_err(engine_err)?;
+    Ok(r)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1954,7 +1321,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let steps = run.sim.step_count() as f64;
     let session_s = run.session_t0.elapsed().as_secs_f64().max(1e-9);
     let session_steps = (run.sim.step_count() - run.session_step0) as f64;
-    let walls_s = run.sim.extension().0.seconds;
+    let walls_s = run.sim.extension().0.as_ref().map_or(0.0, |w| w.seconds);
     let visc = plan.membrane_viscosity();
     let visc_summary = membrane_viscosity_summary(
         plan.s.cell.membrane_viscosity_pa_s_m,
@@ -2010,31 +1377,31 @@ pub fn run_from(
 ) -> Result<serde_json::Value, RunError> {
     let plan = Plan::new(s)?;
     let (sim, rest, st, info) = match checkpoint {
-        Some(ck) => restore(&plan, ck)?,
+        Some(ck) => {
+            let r = restore(&plan, ck)?;
+            (r.sim, r.rest, r.progress, r.mesh_info)
+        }
         None => {
             let (sim, rest, info) = build(&plan)?;
             (sim, rest, ProtocolState::default(), info)
         }
     };
     let traj = if plan.frame_every > 0 {
-        let last_frame = checkpoint.and_then(|ck| run_dir::last_scheduled_frame(ck.step, 0, plan.frame_every));
-        Some(run_dir::open_trajectory(
+        let meta = || {
+            RunMetadata::new("capillary", plan.toml.clone(), s.seed, unit_system(&plan)).with_extra(
+                "particle_types",
+                MetaValue::Str(
+                    "fields from plasma (0) and cytosol (2); membrane frames are the cell's vertices".into(),
+                ),
+            )
+        };
+        Some(open_cell_trajectory(
             ctx,
-            checkpoint.is_some(),
-            last_frame,
-            |path| {
-                let meta = RunMetadata::new("capillary", plan.toml.clone(), s.seed, unit_system(&plan)).with_extra(
-                    "particle_types",
-                    MetaValue::Str(
-                        "fields from plasma (0) and cytosol (2); membrane frames are the cell's vertices".into(),
-                    ),
-                );
-                let mut w = TrajectoryWriter::create(path, &meta)?;
-                w.write_mesh(&rest.triangles)?;
-                let cell = &sim.extension().1;
-                w.set_membrane_reference(cell.model().area0(), cell.model().volume0())?;
-                Ok(w)
-            },
+            checkpoint,
+            plan.frame_every,
+            meta,
+            &sim,
+            &rest,
         )?)
     } else {
         None
@@ -2231,30 +1598,6 @@ mod tests {
         assert!((tau - 0.004).abs() < 2e-5, "{tau}");
         // a flat series does not decay
         assert!(decay_time(&t, &vec![1.0; 400]).is_nan());
-    }
-
-    /// "auto" membrane sub-steps: the smallest k with (γ_T + γ_C)(Δt/k)/μ ≤ 1 (μ = ½ for unit
-    /// vertex masses), 1 without a viscosity; a count is taken as it is (default 1). The physiological
-    /// 6.3e-7 N·s/m of the default capillary mapping (γ_T + γ_C ≈ 9923 at Δt = 0.0025) gives 50.
-    #[test]
-    fn automatic_membrane_substeps() {
-        let v = MembraneViscosity {
-            gamma_t: 7442.5,
-            gamma_c: 7442.5 / 3.0,
-        };
-        let auto = SubstepSetting::Word("auto".into());
-        assert_eq!(resolve_substeps(&auto, Some(&v), 0.0025, 1.0), 50);
-        assert_eq!(resolve_substeps(&auto, None, 0.0025, 1.0), 1);
-        assert_eq!(resolve_substeps(&SubstepSetting::Count(7), Some(&v), 0.0025, 1.0), 7);
-        assert_eq!(resolve_substeps(&d_substeps(), Some(&v), 0.0025, 1.0), 1);
-        let weak = MembraneViscosity {
-            gamma_t: 10.0,
-            gamma_c: 10.0 / 3.0,
-        };
-        assert_eq!(resolve_substeps(&auto, Some(&weak), 0.0025, 1.0), 1);
-        let k = resolve_substeps(&auto, Some(&v), 0.0025, 1.0) as f64;
-        assert!((v.gamma_t + v.gamma_c) * 0.0025 / k / 0.5 <= 1.0);
-        assert!((v.gamma_t + v.gamma_c) * 0.0025 / (k - 1.0) / 0.5 > 1.0);
     }
 
     /// The wall radius carries the no-slip flux of the physical radius: R_w⁴(1 + 4b/R_w) = R⁴.

@@ -7,6 +7,7 @@
 //! `summary.json`.
 
 pub mod capillary;
+pub mod cell;
 pub mod channel;
 pub mod driver;
 pub mod figures;

@@ -6,7 +6,7 @@
 //! the fluid's slip length so that the no-slip planes are `box_um[1]` apart). The cell starts
 //! at the centre of the box, its symmetry axis in the shear plane, its diameter at
 //! `initial_inclination_deg` from the flow. Inner and outer fluid, the membrane–fluid coupling
-//! and the unit mapping are those of the capillary scenario ([`crate::capillary`]); the
+//! and the `[cell]` and shared `[model]` keys are the cell-in-flow family's ([`crate::cell`]); the
 //! characteristic velocity of the mapping is γ̇ D0/2, the velocity of the membrane relative to
 //! the fluid around it (a linear shear flow is an exact solution at any streaming velocity, so
 //! the Mach number that matters is that of the disturbance the cell makes, not of the box edge).
@@ -15,26 +15,24 @@
 //! on by [`hemodpd_membrane::motion`] and classified over the window after
 //! `analysis_start_strain`; `hemodpd analyze` does the same from a trajectory.
 
-use crate::capillary::{
-    cell_fluid_field, cell_membrane_viscosity, cell_mesh_um, cell_params, check_membrane_timestep_for, d_substeps,
-    describe_engine_error, membrane_model, membrane_viscosity_summary, resolve_substeps, thermal_choice, validate_cell,
-    validate_substeps, validate_thermal, CellSection, SubstepSetting, ThermalSetting, INNER, MEMBRANE, OUTER,
-    VERTEX_MASS, WALL,
+use crate::cell::build::{
+    cell_membrane_viscosity, cell_mesh_um, check_membrane_timestep, membrane_model, place_cell, CellPlan,
 };
+use crate::cell::checkpoint::{open_cell_trajectory, restore_cell_run, save_cell_run, CheckpointHead};
+use crate::cell::section::{cell_params, resolve_substeps, thermal_choice, validate_cell, validate_model, ModelKeys};
+use crate::cell::summary::{crossings_json, membrane_viscosity_summary, step_shares};
+use crate::cell::{describe_engine_error, CellSection, CellSim, OUTER, VERTEX_MASS};
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
-use crate::run_dir::{
-    self, engine_err, out_err, particles_from_checkpoint, particles_into_checkpoint, TRAJECTORY_FILE,
-};
-use crate::units::{self, FluidModel, PhysicalSystem, UnitMapping};
+use crate::run_dir::{engine_err, out_err, TRAJECTORY_FILE};
+use crate::units::{self, um_to_m, FluidModel, PhysicalSystem, UnitMapping};
 use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::params::CAPILLARY_FLUID_WALL_SLIP;
-use hemodpd_engine::walls::{self, Reflection, WallConfig, WallSetup, WallShape, Walls, WallsState};
-use hemodpd_engine::{init, Particles, PeriodicBox, SimConfig, SimState, Simulation, Timed};
-use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
+use hemodpd_engine::walls::{self, WallSetup, WallShape};
+use hemodpd_engine::{init, SimConfig};
+use hemodpd_io::checkpoint::Checkpoint;
 use hemodpd_io::{FrameScalar, MetaValue, Quantity, RunMetadata, TrajectoryWriter};
-use hemodpd_membrane::coupling::{Cell, CellConfig, CellState, MembraneReflection, WallRepulsion};
 use hemodpd_membrane::motion::{self, FrameMotion, MotionAnalysis, MotionThresholds, MotionTracker, TrackerSnapshot};
 use hemodpd_membrane::shape::EvansFung;
 use hemodpd_membrane::Mesh;
@@ -53,21 +51,6 @@ fn d_outer() -> f64 {
 }
 fn d_inner() -> f64 {
     6e-3
-}
-fn d_one() -> f64 {
-    1.0
-}
-fn d_mach() -> f64 {
-    units::MACH_LIMIT
-}
-fn d_thermal() -> ThermalSetting {
-    ThermalSetting::Word("auto".into())
-}
-fn d_check() -> u64 {
-    500
-}
-fn d_range() -> f64 {
-    0.3
 }
 fn d_sample() -> f64 {
     0.05
@@ -132,36 +115,10 @@ pub struct ShearFluidSection {
     pub inner_viscosity_pa_s: f64,
 }
 
-/// `[model]`: how SI maps onto the DPD model (docs/units.md).
-#[derive(Clone, Debug, Deserialize, Serialize)]
-#[serde(deny_unknown_fields)]
-pub struct ShearModelSection {
-    /// µm per rc (default 1).
-    #[serde(default = "d_one")]
-    pub length_um_per_rc: f64,
-    /// "auto" (default: the smallest thermal factor f ≥ 1 with the Mach number of γ̇ D0/2 at
-    /// most `max_mach`), "exact" (f = 1) or a number f ≥ 1.
-    #[serde(default = "d_thermal")]
-    pub thermal_factor: ThermalSetting,
-    /// Mach bound for "auto" (default 0.25).
-    #[serde(default = "d_mach")]
-    pub max_mach: f64,
-    /// Model time step (default: the capillary fluid's, 0.0025).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub timestep: Option<f64>,
-    /// Steps between inside/outside checks of the fluid (default 500; 0: never).
-    #[serde(default = "d_check")]
-    pub crossing_check_every_steps: u64,
-    /// Range of the membrane–plate repulsion, rc (default 0.3; plates only).
-    #[serde(default = "d_range")]
-    pub wall_repulsion_range_rc: f64,
-    /// "maxwell" (default) or "bounce-back" (docs/capillary.md).
-    #[serde(default)]
-    pub membrane_reflection: MembraneReflection,
-    /// Membrane sub-steps per fluid step: 1–1000 (default 1) or "auto", as the capillary's
-    /// `model.membrane_substeps` (docs/model.md §7b).
-    #[serde(default = "d_substeps")]
-    pub membrane_substeps: SubstepSetting,
+crate::cell::section::model_section! {
+    /// `[model]`: how SI maps onto the DPD model (docs/units.md): the keys of every cell-in-flow
+    /// kind (the membrane–wall repulsion acts with plates only).
+    ShearModelSection {}
 }
 
 /// `[output]`.
@@ -247,11 +204,11 @@ impl ShearScenario {
     /// the Reynolds number D0 (Re = ρ γ̇ D0²/(2η)), viscosity ratio η_in/η_out.
     pub fn physical(&self) -> Result<PhysicalSystem, RunError> {
         let p = cell_params(&self.cell)?;
-        let d0 = d0_um() * 1e-6;
+        let d0 = um_to_m(d0_um());
         let mut sys = PhysicalSystem::new(
             &p,
             d0,
-            self.shear.box_um[0] * 1e-6,
+            um_to_m(self.shear.box_um[0]),
             self.fluid.outer_viscosity_pa_s,
             self.shear_rate() * 0.5 * d0,
         );
@@ -265,7 +222,7 @@ impl ShearScenario {
         let m = UnitMapping::choose(
             &sys,
             &FluidModel::capillary(),
-            self.model.length_um_per_rc * 1e-6,
+            um_to_m(self.model.length_um_per_rc),
             thermal_choice(&self.model.thermal_factor, self.model.max_mach),
         )
         .map_err(|e| RunError::Output(format!("unit mapping: {e}")))?;
@@ -437,30 +394,10 @@ pub fn validate(s: &ShearScenario, file: &str) -> Result<(), ScenarioError> {
         )?;
     }
     validate_cell(&s.cell, file)?;
-    range(
-        "model.length_um_per_rc",
-        s.model.length_um_per_rc,
-        0.25,
-        2.0,
-        "0.25–2 µm per rc",
-    )?;
-    validate_thermal(&s.model.thermal_factor, s.model.max_mach, file)?;
-    if let Some(dt) = s.model.timestep {
-        range(
-            "model.timestep",
-            dt,
-            1e-4,
-            0.004,
-            "1e-4–0.004 model units (default 0.0025, the capillary fluid's)",
-        )?;
-    }
-    validate_substeps(&s.model.membrane_substeps, file)?;
-    range(
-        "model.wall_repulsion_range_rc",
-        s.model.wall_repulsion_range_rc,
-        0.05,
-        1.0,
-        "0.05–1 rc",
+    validate_model(
+        s.model.shared(),
+        "1e-4–0.004 model units (default 0.0025, the capillary fluid's)",
+        file,
     )?;
     range(
         "output.sample_every_strain",
@@ -476,7 +413,8 @@ pub fn validate(s: &ShearScenario, file: &str) -> Result<(), ScenarioError> {
         1e4,
         "0 (none) to 1e4",
     )?;
-    if let Err(e) = s.mapping() {
+    // the unit mapping's own bounds (Mach, Reynolds), with the key of the scenario
+    if let Err(e) = Plan::new(s) {
         return Err(fail(
             "shear.shear_rate_per_s",
             format!("{} 1/s", s.shear_rate()),
@@ -517,7 +455,7 @@ impl<'a> Plan<'a> {
         let fluid = FluidModel::capillary();
         let dt = s.model.timestep.unwrap_or(fluid.timestep);
         let rate = s.shear_rate() * map.time_s;
-        let mut l = DVec3::from_array(s.shear.box_um.map(|x| map.length_to_model(x * 1e-6)));
+        let mut l = DVec3::from_array(s.shear.box_um.map(|x| map.length_to_model(um_to_m(x))));
         let rc = fluid.pair.rc;
         let plates = match s.shear.driver {
             ShearDriver::LeesEdwards => None,
@@ -571,14 +509,6 @@ impl<'a> Plan<'a> {
         })
     }
 
-    fn config(&self) -> SimConfig {
-        let c = SimConfig::new(self.box_lengths, self.dt, self.s.seed);
-        match self.plates {
-            None => c.with_shear_rate(self.rate),
-            Some(_) => c,
-        }
-    }
-
     /// Streaming velocity at `x`: γ̇ (y − y_c) x̂ (zero at the cell's centre).
     fn streaming(&self, x: DVec3) -> DVec3 {
         DVec3::new(self.rate * (x.y - self.centre.y), 0.0, 0.0)
@@ -598,58 +528,56 @@ impl<'a> Plan<'a> {
         }
         Ok((mesh, info))
     }
+}
 
-    fn wall_config(&self) -> WallConfig {
-        WallConfig {
-            reflection: Reflection::BounceBack,
-            bins: 5,
-            rc: self.fluid.pair.rc,
-            adapt: false,
-            ..WallConfig::default()
-        }
+impl CellPlan for Plan<'_> {
+    fn cell(&self) -> &CellSection {
+        &self.s.cell
     }
-
-    fn cell_config(&self, first: usize) -> CellConfig {
-        CellConfig {
-            first,
-            outer_type: OUTER,
-            inner_type: INNER,
-            check_every: self.s.model.crossing_check_every_steps,
-            wall: self.plates.map(|shape| WallRepulsion {
-                shape,
-                range: self.s.model.wall_repulsion_range_rc * self.fluid.pair.rc,
-                strength: 4.0 * self.fluid.pair.a,
-            }),
-            reflection: self.s.model.membrane_reflection,
-            kbt: self.fluid.pair.kbt,
-            seed: self.s.seed,
-            viscosity: cell_membrane_viscosity(&self.s.cell, &self.map),
-            substeps: self.substeps,
-        }
+    fn model_keys(&self) -> ModelKeys<'_> {
+        self.s.model.shared()
     }
-
+    fn map(&self) -> &UnitMapping {
+        &self.map
+    }
+    fn fluid(&self) -> &FluidModel {
+        &self.fluid
+    }
     fn viscosity_ratio(&self) -> f64 {
         self.s.fluid.inner_viscosity_pa_s / self.s.fluid.outer_viscosity_pa_s
+    }
+    fn substeps(&self) -> u32 {
+        self.substeps
+    }
+    fn dt(&self) -> f64 {
+        self.dt
+    }
+    fn seed(&self) -> u64 {
+        self.s.seed
+    }
+    fn box_lengths(&self) -> DVec3 {
+        self.box_lengths
+    }
+    /// Lees–Edwards boundaries carry the shear rate; plates need none.
+    fn sim_config(&self) -> SimConfig {
+        let c = SimConfig::new(self.box_lengths, self.dt, self.s.seed);
+        match self.plates {
+            None => c.with_shear_rate(self.rate),
+            Some(_) => c,
+        }
+    }
+    fn wall_shape(&self) -> Option<WallShape> {
+        self.plates
     }
 }
 
 /// The simulation of a shear run: plates (or none) and the cell.
-pub type ShearSim = Simulation<(Option<Timed<Walls>>, Cell)>;
+pub type ShearSim = CellSim;
 
 fn build(plan: &Plan) -> Result<(ShearSim, Mesh, serde_json::Value), RunError> {
     let (rest, info) = plan.rest_mesh()?;
     let model = membrane_model(&plan.s.cell, &plan.map, &rest)?;
-    let visc = cell_membrane_viscosity(&plan.s.cell, &plan.map);
-    check_membrane_timestep_for(
-        plan.dt,
-        plan.substeps,
-        plan.fluid.pair.kbt,
-        plan.map.thermal_factor,
-        visc.as_ref(),
-        &model,
-        &rest,
-    )?;
-    let config = plan.config();
+    check_membrane_timestep(plan, &model, &rest)?;
     let base = match plan.plates {
         Some(shape) => {
             let setup = WallSetup {
@@ -673,38 +601,11 @@ fn build(plan: &Plan) -> Result<(ShearSim, Mesh, serde_json::Value), RunError> {
                 ..init::FluidSpec::standard()
             };
             let field = hemodpd_engine::ForceField::single(plan.fluid.pair);
-            init::fluid(&config, &field, &spec, plan.s.seed ^ 0x5EA4).map_err(engine_err)?
+            init::fluid(&plan.sim_config(), &field, &spec, plan.s.seed ^ 0x5EA4).map_err(engine_err)?
         }
     };
-    let vertex_density = rest.vertices.len() as f64 / rest.area();
-    let field = cell_fluid_field(&plan.fluid, plan.viscosity_ratio(), vertex_density, plan.substeps)?;
-    let mut p = Particles::with_capacity(base.len() + rest.vertices.len());
-    let mut max_id = 0u32;
-    for i in 0..base.len() {
-        let x = base.pos[i];
-        let (t, v) = if base.ptype[i] == walls::WALL_TYPE {
-            (WALL, base.vel[i])
-        } else {
-            let t = if hemodpd_membrane::mesh::contains(x, &rest.vertices, &rest.triangles) {
-                INNER
-            } else {
-                OUTER
-            };
-            (t, base.vel[i] + plan.streaming(x))
-        };
-        p.push(x, v, t, base.id[i]);
-        max_id = max_id.max(base.id[i]);
-    }
-    let first = p.len();
-    for (k, v) in rest.vertices.iter().enumerate() {
-        p.push(*v, plan.streaming(*v), MEMBRANE, max_id + 1 + k as u32);
-    }
-    let walls_ext = match plan.plates {
-        Some(shape) => Some(Timed::new(Walls::new(shape, plan.wall_config()).map_err(engine_err)?)),
-        None => None,
-    };
-    let cell = Cell::new(model, plan.cell_config(first), rest.vertices.clone()).map_err(engine_err)?;
-    let sim = Simulation::with_extension(config, field, p, (walls_ext, cell)).map_err(describe_engine_error)?;
+    let streaming = |x: DVec3| plan.streaming(x);
+    let sim = place_cell(plan, &base, &rest, model, Some(&streaming))?;
     Ok((sim, rest, info))
 }
 
@@ -870,66 +771,15 @@ impl Stepper for Run<'_> {
     fn save_checkpoint(&mut self, ctx: &RunContext) -> Result<(), RunError> {
         self.st.stepping_seconds += self.clock.elapsed().as_secs_f64();
         self.clock = std::time::Instant::now();
-        let sim = &self.sim;
-        let mut ck = Checkpoint::new(sim.step_count(), sim.time(), self.plan.s.seed, self.plan.toml.clone());
-        ck.set_scalar("scenario_kind", ScalarValue::Str("shear".into()));
-        ck.set_scalar(
-            "base_dir",
-            ScalarValue::Str(self.plan.s.base_dir.to_string_lossy().into_owned()),
-        );
-        particles_into_checkpoint(&mut ck, sim.particles());
-        let (walls_ext, cell) = sim.extension();
-        if let Some(w) = walls_ext {
-            run_dir::json_into_checkpoint(&mut ck, "walls_state_json", &w.inner.state())?;
-        }
-        run_dir::json_into_checkpoint(&mut ck, "progress_json", &self.st)?;
-        crate::capillary::cell_into_checkpoint(&mut ck, cell, &self.rest, &self.mesh_info)?;
-        run_dir::save_checkpoint(&ck, ctx)
+        let head = CheckpointHead {
+            kind: "shear",
+            seed: self.plan.s.seed,
+            toml: &self.plan.toml,
+            base_dir: &self.plan.s.base_dir,
+            finished: None,
+        };
+        save_cell_run(&self.sim, &head, &self.st, &self.rest, &self.mesh_info, ctx)
     }
-}
-
-fn restore(plan: &Plan, ck: &Checkpoint) -> Result<(ShearSim, Mesh, ShearState, serde_json::Value), RunError> {
-    let bad = |e: hemodpd_io::IoError| RunError::Output(format!("checkpoint: {e}"));
-    let kind = ck.scalar_str("scenario_kind").map_err(bad)?;
-    if kind != "shear" {
-        return Err(RunError::Output(format!("checkpoint of a {kind} run, not shear")));
-    }
-    let particles = particles_from_checkpoint(ck)?;
-    let rest = crate::capillary::rest_mesh_from_checkpoint(ck)?;
-    let model = membrane_model(&plan.s.cell, &plan.map, &rest)?;
-    let vertex_density = rest.vertices.len() as f64 / rest.area();
-    let field = cell_fluid_field(&plan.fluid, plan.viscosity_ratio(), vertex_density, plan.substeps)?;
-    let first = particles
-        .ptype
-        .iter()
-        .position(|&t| t == MEMBRANE)
-        .ok_or_else(|| RunError::Output("checkpoint: no membrane vertices".into()))?;
-    let cs: CellState = run_dir::json_from_checkpoint(ck, "cell_state_json")?;
-    let cell = Cell::new(model, plan.cell_config(first), rest.vertices.clone())
-        .and_then(|c| c.with_state(cs))
-        .map_err(engine_err)?;
-    let walls_ext = match plan.plates {
-        Some(shape) => {
-            let ws: WallsState = run_dir::json_from_checkpoint(ck, "walls_state_json")?;
-            let domain = PeriodicBox::new(plan.box_lengths).map_err(engine_err)?;
-            Some(Timed::new(
-                Walls::new(shape, plan.wall_config())
-                    .and_then(|w| w.with_state(ws, &domain))
-                    .map_err(engine_err)?,
-            ))
-        }
-        None => None,
-    };
-    let state = SimState {
-        config: plan.config(),
-        field,
-        particles,
-        step: ck.step,
-    };
-    let sim = Simulation::from_state(state, (walls_ext, cell)).map_err(engine_err)?;
-    let st: ShearState = run_dir::json_from_checkpoint(ck, "progress_json")?;
-    let info: serde_json::Value = run_dir::json_from_checkpoint(ck, "mesh_info_json")?;
-    Ok((sim, rest, st, info))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1077,7 +927,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             plan.dt,
         ),
         "mesh": run.mesh_info,
-        "crossings": crate::capillary::crossings_json(stats),
+        "crossings": crossings_json(stats),
         "performance": {
             "steps": steps,
             "stepping_seconds": secs,
@@ -1089,7 +939,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
                 "steps": session_steps,
                 "seconds": session_s,
                 "steps_per_second": session_steps / session_s,
-                "share": crate::capillary::step_shares(session_s, &timers, walls_s, run.output_s),
+                "share": step_shares(session_s, &timers, walls_s, run.output_s),
             },
         },
         "files": { "time_series": "motion.csv", "trajectory": if plan.frame_every > 0 { json!(TRAJECTORY_FILE) } else { json!(null) } },
@@ -1104,7 +954,10 @@ pub fn run_from(
 ) -> Result<serde_json::Value, RunError> {
     let plan = Plan::new(s)?;
     let (sim, rest, st, info) = match checkpoint {
-        Some(ck) => restore(&plan, ck)?,
+        Some(ck) => {
+            let r = restore_cell_run::<ShearState>(&plan, "shear", ck)?;
+            (r.sim, r.rest, r.progress, r.mesh_info)
+        }
         None => {
             let (sim, rest, info) = build(&plan)?;
             (sim, rest, ShearState::default(), info)
@@ -1118,21 +971,18 @@ pub fn run_from(
         MotionTracker::new(&rest.vertices).map_err(motion_err)?
     };
     let traj = if plan.frame_every > 0 {
-        let last_frame = checkpoint.and_then(|ck| run_dir::last_scheduled_frame(ck.step, 0, plan.frame_every));
-        Some(run_dir::open_trajectory(
+        let meta = || {
+            RunMetadata::new("shear", plan.toml.clone(), s.seed, plan.map.unit_system())
+                .with_extra("shear_rate_per_s", MetaValue::F64(s.shear_rate()))
+                .with_extra("particle_types", MetaValue::Str("membrane frames only".into()))
+        };
+        Some(open_cell_trajectory(
             ctx,
-            checkpoint.is_some(),
-            last_frame,
-            |path| {
-                let meta = RunMetadata::new("shear", plan.toml.clone(), s.seed, plan.map.unit_system())
-                    .with_extra("shear_rate_per_s", MetaValue::F64(s.shear_rate()))
-                    .with_extra("particle_types", MetaValue::Str("membrane frames only".into()));
-                let mut w = TrajectoryWriter::create(path, &meta)?;
-                w.write_mesh(&rest.triangles)?;
-                let cell = &sim.extension().1;
-                w.set_membrane_reference(cell.model().area0(), cell.model().volume0())?;
-                Ok(w)
-            },
+            checkpoint,
+            plan.frame_every,
+            meta,
+            &sim,
+            &rest,
         )?)
     } else {
         None

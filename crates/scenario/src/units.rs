@@ -153,8 +153,9 @@ impl FluidModel {
 /// The physical system of a capillary scenario, all in SI.
 #[derive(Debug, Clone, PartialEq)]
 pub struct PhysicalSystem {
-    /// Tube diameter D_tube, m.
-    pub tube_diameter_m: f64,
+    /// Length scale L of the flow, m: the tube's diameter in a capillary, the resting cell's
+    /// diameter D0 in shear. The Reynolds number ρUL/η and the confinement D0/L are taken on it.
+    pub flow_length_m: f64,
     /// Tube length (periodic axis), m.
     pub tube_length_m: f64,
     /// Temperature, K.
@@ -183,6 +184,11 @@ pub struct PhysicalSystem {
     pub membrane_viscosity_n_s_per_m: f64,
 }
 
+/// A length in µm as metres.
+pub fn um_to_m(um: f64) -> f64 {
+    um * 1e-6
+}
+
 /// Mean velocity of Poiseuille flow in a tube of diameter `d_m` under the pressure gradient
 /// `g_pa_per_m` with viscosity `eta_pa_s`: U = g R²/(8η), m/s.
 pub fn poiseuille_mean_velocity(g_pa_per_m: f64, d_m: f64, eta_pa_s: f64) -> f64 {
@@ -201,7 +207,7 @@ impl PhysicalSystem {
     /// density 1025 kg/m³ and viscosity ratio 1.
     pub fn new(
         membrane: &ModelParams,
-        tube_diameter_m: f64,
+        flow_length_m: f64,
         tube_length_m: f64,
         plasma_viscosity_pa_s: f64,
         velocity_m_s: f64,
@@ -209,7 +215,7 @@ impl PhysicalSystem {
         let shape = EvansFung::healthy_um();
         let (area_um2, volume_um3) = shape.area_and_volume();
         Self {
-            tube_diameter_m,
+            flow_length_m,
             tube_length_m,
             temperature_k: membrane.temperature_k,
             plasma_viscosity_pa_s,
@@ -238,7 +244,7 @@ impl PhysicalSystem {
     }
 
     fn validate(&self) -> Result<(), UnitsError> {
-        positive("tube_diameter_m", self.tube_diameter_m)?;
+        positive("flow_length_m", self.flow_length_m)?;
         positive("tube_length_m", self.tube_length_m)?;
         positive("temperature_k", self.temperature_k)?;
         positive("plasma_viscosity_pa_s", self.plasma_viscosity_pa_s)?;
@@ -549,7 +555,7 @@ pub fn groups_si(sys: &PhysicalSystem) -> Groups {
         sys.cell_diameter_m,
         sys.cell_area_m2,
         sys.cell_volume_m3,
-        sys.tube_diameter_m,
+        sys.flow_length_m,
         sys.viscosity_ratio,
         sys.kbt_j(),
         sys.plasma_density_kg_m3,
@@ -560,7 +566,8 @@ pub fn groups_si(sys: &PhysicalSystem) -> Groups {
 /// The model's values of the system (model units).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ModelValues {
-    pub tube_diameter: f64,
+    /// The flow's length scale L ([`PhysicalSystem::flow_length_m`]).
+    pub flow_length: f64,
     pub tube_length: f64,
     pub cell_diameter: f64,
     pub cell_area: f64,
@@ -588,11 +595,11 @@ pub struct ModelValues {
 /// Converts the system to model units: lengths /r, moduli ·r²/E, κ/E, U·τ/r; the fluid's own
 /// η_M, kBT, n·m and c_M.
 pub fn model_values(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> ModelValues {
-    let d_tube = m.length_to_model(sys.tube_diameter_m);
+    let d_tube = m.length_to_model(sys.flow_length_m);
     let u = m.velocity_to_model(sys.velocity_m_s);
     let g = 8.0 * fluid.viscosity * u / (0.5 * d_tube).powi(2);
     ModelValues {
-        tube_diameter: d_tube,
+        flow_length: d_tube,
         tube_length: m.length_to_model(sys.tube_length_m),
         cell_diameter: m.length_to_model(sys.cell_diameter_m),
         cell_area: sys.cell_area_m2 / m.length_m.powi(2),
@@ -622,7 +629,7 @@ pub fn groups_model(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -
         v.cell_diameter,
         v.cell_area,
         v.cell_volume,
-        v.tube_diameter,
+        v.flow_length,
         v.inner_viscosity / v.viscosity,
         v.kbt,
         v.mass_density,
@@ -635,7 +642,7 @@ pub fn groups_model(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -
 pub fn explain(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> String {
     let v = model_values(sys, m, fluid);
     let (gs, gm) = (groups_si(sys), groups_model(sys, m, fluid));
-    let g_si = poiseuille_pressure_gradient(sys.velocity_m_s, sys.tube_diameter_m, sys.plasma_viscosity_pa_s);
+    let g_si = poiseuille_pressure_gradient(sys.velocity_m_s, sys.flow_length_m, sys.plasma_viscosity_pa_s);
     let mut s = String::new();
     let _ = writeln!(
         s,
@@ -700,8 +707,8 @@ pub fn explain(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> Str
     pair(
         &mut s,
         "tube diameter",
-        format!("{:.4} µm", sys.tube_diameter_m * 1e6),
-        v.tube_diameter,
+        format!("{:.4} µm", sys.flow_length_m * 1e6),
+        v.flow_length,
     );
     pair(
         &mut s,
@@ -1024,11 +1031,8 @@ mod tests {
             "{e}"
         );
         let mut bad = sys.clone();
-        bad.tube_diameter_m = f64::NAN;
-        assert_eq!(
-            key(&bad, &fluid, 1e-6, ThermalChoice::default()).key(),
-            "tube_diameter_m"
-        );
+        bad.flow_length_m = f64::NAN;
+        assert_eq!(key(&bad, &fluid, 1e-6, ThermalChoice::default()).key(), "flow_length_m");
         let mut bad_fluid = fluid.clone();
         bad_fluid.viscosity = 0.0;
         assert_eq!(
@@ -1055,7 +1059,7 @@ mod tests {
         assert_eq!(e.key(), "velocity_m_s");
         // a 50 µm tube at Mach 0.25: Re ≈ 5.7 > 5 (Re ∝ D at a fixed Mach; the 10 µm tube has 1.13)
         let mut wide = sys.clone();
-        wide.tube_diameter_m = 50e-6;
+        wide.flow_length_m = 50e-6;
         let e = key(&wide, &fluid, 1e-6, ThermalChoice::default());
         assert_eq!(e.key(), "velocity_m_s");
         assert!(e.to_string().contains("Reynolds"), "{e}");
