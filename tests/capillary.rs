@@ -82,7 +82,7 @@ fn cell_at_rest_keeps_its_shape_area_volume_and_temperature() {
 ///   at 20 ms, 4.7 µm and 1.8 µm.
 /// - Its length lies within the scatter of Hochmuth et al. (1970) at D = 10.7 µm, the nearest
 ///   diameter measured (4.38–7.46 µm for cell velocities up to 0.7 cm/s), at the short end of
-///   that band (docs/validation.md, "Capillary").
+///   that band (docs/validation.md, §6 "The cell in the capillary").
 /// - Without flow it heads back to its resting shape.
 /// - No fluid crosses the membrane.
 #[test]

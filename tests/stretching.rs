@@ -4,7 +4,7 @@
 use hemodpd_scenario::stretching::{self, mills_2004};
 use hemodpd_scenario::Scenario;
 
-fn scenario(sets: &[&str]) -> hemodpd_scenario::file::StretchingScenario {
+fn scenario(sets: &[&str]) -> hemodpd_scenario::stretching::StretchingScenario {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/stretching.toml");
     let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
     match hemodpd_scenario::load(&path, &sets).unwrap() {

@@ -834,6 +834,7 @@ fn wall_scenarios_run() {
         "run.flow_steps=100",
         "run.steps=300",
         "run.profile_bins=6",
+        "run.measure_overhead=true",
     ]
     .iter()
     .map(|s| s.to_string())

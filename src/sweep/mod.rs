@@ -52,7 +52,7 @@ pub struct SweepArgs {
 /// whether it is a timing that differs from run to run); each kind declares its own
 /// ([`hemodpd_scenario::Kind::SWEEP_COLUMNS`]).
 pub fn columns(kind: &str) -> &'static [(&'static str, &'static str, bool)] {
-    hemodpd_scenario::kind::sweep_columns(kind)
+    hemodpd_scenario::sweep_columns(kind)
 }
 
 fn available_threads() -> usize {

@@ -9,11 +9,11 @@
 //!   ([`Stepper::at_boundary`], e.g. a phase change), then a frame when due and a checkpoint
 //!   every `checkpoint_every` steps; on resume the frame and checkpoint of the boundary the
 //!   checkpoint was written at are not repeated (the boundary work is, so it must be idempotent);
-//! * on Ctrl-C ([`crate::INTERRUPTED`]) or at [`RunContext::stop_at_step`]: a final frame (if
+//! * on Ctrl-C ([`crate::context::INTERRUPTED`]) or at [`RunContext::stop_at_step`]: a final frame (if
 //!   none was due), a checkpoint, and [`RunError::Interrupted`];
 //! * at the end: a checkpoint marked finished.
 
-use crate::{RunContext, RunError};
+use crate::context::{RunContext, RunError};
 use std::sync::atomic::Ordering;
 
 /// What a time-stepping scenario supplies to [`drive`].
@@ -66,7 +66,7 @@ pub fn drive(s: &mut impl Stepper, ctx: &RunContext, resumed: bool, checkpoint_e
         if s.finished() {
             break;
         }
-        if crate::INTERRUPTED.load(Ordering::Relaxed) || ctx.stop_at_step == Some(step) {
+        if crate::context::INTERRUPTED.load(Ordering::Relaxed) || ctx.stop_at_step == Some(step) {
             if !s.frame_due() {
                 s.write_frame()?; // dropped again on resume when off schedule
             }

@@ -1,18 +1,9 @@
 //! The ground floor of scenario files, which every kind may use: the error type, [`load`] with
 //! `--set` overrides, the format version, the `[fluid]` section of the DPD kinds and the checks
 //! the time-stepping kinds share. Which kinds exist and how each is parsed, validated and run is
-//! [`crate::kind`]'s; a kind's own sections live in its module. The kinds' section types are
-//! re-exported here under the paths they have always had.
+//! [`crate::kind`]'s; a kind's own sections live in its module.
 
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
-
-pub use crate::channel::{
-    CouetteScenario, InitialWallForce, PlatesSection, TubeScenario, TubeSection, WallOutput, WallRunSection,
-    WallsSection,
-};
-pub use crate::fluid::{FluidOutput, FluidRunSection, FluidScenario};
-pub use crate::stretching::{MembraneSection, StretchingOutput, StretchingScenario, StretchingSection};
 
 /// Version of the scenario file format this build reads.
 pub const FORMAT_VERSION: u32 = 1;
@@ -35,15 +26,6 @@ pub enum ScenarioError {
     Missing { file: String, key: String, what: String },
     #[error("--set {assignment}: {message}")]
     Override { assignment: String, message: String },
-}
-
-pub use crate::kind::Scenario;
-
-impl Scenario {
-    /// The resolved scenario (defaults filled in, overrides applied) as TOML text.
-    pub fn to_toml(&self) -> String {
-        toml::to_string(self).unwrap_or_default()
-    }
 }
 
 // serde defaults several kinds' sections share
@@ -109,123 +91,6 @@ pub(crate) fn syntax(file: &str, e: impl std::fmt::Display) -> ScenarioError {
         file: file.to_string(),
         message: e.to_string().trim_end().to_string(),
     }
-}
-
-/// Reads, overrides (`key=value`, dotted keys) and validates a scenario file.
-pub fn load(path: &Path, sets: &[String]) -> Result<Scenario, ScenarioError> {
-    let file = path.display().to_string();
-    let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Read {
-        file: file.clone(),
-        source,
-    })?;
-    let mut s = load_str(&text, &file, sets)?;
-    // absolute, so that a checkpoint resumed from another working directory still finds the
-    // files the scenario names
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let dir = std::path::absolute(&dir).unwrap_or(dir);
-    s.set_base_dir(dir);
-    // the files a scenario names must exist and fit it
-    s.check_files(&file)?;
-    Ok(s)
-}
-
-/// As [`load`], from text; `file` names it in messages.
-pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, ScenarioError> {
-    let mut table: toml::Table = text.parse().map_err(|e| syntax(file, e))?;
-    for a in sets {
-        apply_set(&mut table, a)?;
-    }
-    let version = match table.get("format_version") {
-        None => {
-            return Err(ScenarioError::Missing {
-                file: file.into(),
-                key: "format_version".into(),
-                what: format!("the file format version, {FORMAT_VERSION} for this build"),
-            })
-        }
-        Some(v) => v.as_integer(),
-    };
-    if version != Some(FORMAT_VERSION as i64) {
-        return Err(ScenarioError::Value {
-            file: file.into(),
-            key: "format_version".into(),
-            value: table["format_version"].to_string(),
-            allowed: format!("{FORMAT_VERSION} (the only version this build reads)"),
-        });
-    }
-    let kind = match table.get("kind").and_then(|k| k.as_str()) {
-        Some(k) => k.to_string(),
-        None => {
-            return Err(ScenarioError::Missing {
-                file: file.into(),
-                key: "kind".into(),
-                what: crate::kind::kind_list(),
-            })
-        }
-    };
-    Scenario::parse(&kind, toml::Value::Table(table), file).unwrap_or_else(|| {
-        Err(ScenarioError::Value {
-            file: file.into(),
-            key: "kind".into(),
-            value: format!("{kind:?}"),
-            allowed: crate::kind::kind_list(),
-        })
-    })
-}
-
-/// Applies `a.b.c=value` to the table. The value is parsed as TOML (numbers, booleans, arrays,
-/// quoted strings); anything that does not parse is taken as a bare string. A number in the path
-/// indexes an array of tables: `stage.1.mean_velocity_m_per_s=2e-3` sets the second `[[stage]]`.
-fn apply_set(table: &mut toml::Table, assignment: &str) -> Result<(), ScenarioError> {
-    let bad = |m: &str| ScenarioError::Override {
-        assignment: assignment.to_string(),
-        message: m.to_string(),
-    };
-    let (key, raw) = assignment.split_once('=').ok_or_else(|| bad("expected key=value"))?;
-    let key = key.trim();
-    if key.is_empty() || key.split('.').any(str::is_empty) {
-        return Err(bad("empty key"));
-    }
-    let value = match format!("v = {}", raw.trim()).parse::<toml::Table>() {
-        Ok(mut t) => t.remove("v").unwrap(),
-        Err(_) => toml::Value::String(raw.trim().to_string()),
-    };
-    let parts: Vec<&str> = key.split('.').collect();
-    // walk the path: a table key, or a key and an index into an array of tables
-    // (`stage.1.duration_s`: the second [[stage]])
-    let mut cur = table;
-    let last = parts.len() - 1;
-    let mut k = 0;
-    while k < last {
-        let p = parts[k];
-        if k + 1 < last {
-            if let Ok(i) = parts[k + 1].parse::<usize>() {
-                let arr = cur
-                    .get_mut(p)
-                    .and_then(|v| v.as_array_mut())
-                    .ok_or_else(|| bad(&format!("`{p}` is not an array (of [[{p}]] tables) to index")))?;
-                let len = arr.len();
-                cur = arr
-                    .get_mut(i)
-                    .ok_or_else(|| bad(&format!("`{p}` has {len} entries, no entry {i} (indices start at 0)")))?
-                    .as_table_mut()
-                    .ok_or_else(|| bad(&format!("`{p}.{i}` is not a table")))?;
-                k += 2;
-                continue;
-            }
-        }
-        cur = cur
-            .entry(p.to_string())
-            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
-            .as_table_mut()
-            .ok_or_else(|| bad(&format!("`{p}` is not a table")))?;
-        k += 1;
-    }
-    cur.insert(parts[parts.len() - 1].to_string(), value);
-    Ok(())
 }
 
 /// Builds the [`ScenarioError::Value`] of a key in `file`.
@@ -331,46 +196,4 @@ pub(crate) fn validate_fluid_params(f: &FluidSection, c: &Check) -> Result<(), S
         4.0,
         "an exponent between 0.05 and 4 (1 standard; 0.5, 0.25 for higher Schmidt number)",
     )
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use hemodpd_membrane::ReferenceState;
-
-    const GOOD: &str = r#"
-format_version = 1
-kind = "stretching"
-seed = 3
-[membrane]
-vertices = 500
-[stretching]
-forces_pn = [0, 100, 200]
-"#;
-
-    #[test]
-    fn good_file_and_overrides() {
-        let s = load_str(
-            GOOD,
-            "good.toml",
-            &[
-                "membrane.vertices=800".into(),
-                "stretching.forces_pn=[0, 50]".into(),
-                "membrane.reference=uniform".into(),
-            ],
-        )
-        .unwrap();
-        let Scenario::Stretching(s) = s else { panic!() };
-        assert_eq!(s.membrane.vertices, 800);
-        assert_eq!(s.stretching.forces_pn, vec![0.0, 50.0]);
-        assert_eq!(s.membrane.reference, ReferenceState::Uniform);
-        assert_eq!(s.membrane.temperature_k, 300.0);
-    }
-
-    #[test]
-    fn resolved_scenario_round_trips() {
-        let s = load_str(GOOD, "good.toml", &[]).unwrap();
-        let again = load_str(&s.to_toml(), "resolved.toml", &[]).unwrap();
-        assert_eq!(s.to_toml(), again.to_toml());
-    }
 }

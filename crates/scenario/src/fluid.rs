@@ -14,6 +14,7 @@
 //! this module supplies the build, the phases and sampling ([`Stepper::advance`]), the frame and
 //! the checkpoint.
 
+use crate::context::{RunContext, RunError};
 use crate::driver::{self, Stepper};
 use crate::file::{
     f_dt, f_lambda, one_u64, validate_fluid_params, validate_output, validate_stepping, Check, FluidSection,
@@ -22,7 +23,6 @@ use crate::file::{
 use crate::run_dir::{
     self, engine_err, out_err, particles_from_checkpoint, particles_into_checkpoint, CHECKPOINT_FILE, TRAJECTORY_FILE,
 };
-use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::init::{self, FluidSpec, Placement};
 use hemodpd_engine::{observe, ForceField, PairParams, SimConfig, SimState, Simulation};

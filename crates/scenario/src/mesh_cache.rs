@@ -45,7 +45,7 @@ pub fn constants_um_pn(p: &ModelParams, k_area_n_per_m: f64, k_volume_n_per_m2: 
 }
 
 /// The relaxed Evans–Fung mesh with `n` vertices for `seed`, from the cache or generated (and cached).
-pub fn relaxed_mesh(n: usize, seed: u64) -> Result<(Mesh, MeshOrigin), crate::RunError> {
+pub fn relaxed_mesh(n: usize, seed: u64) -> Result<(Mesh, MeshOrigin), crate::context::RunError> {
     let dir = cache_dir();
     let path = dir.join(format!("rbc-n{n}-seed{seed}-v{GENERATOR_VERSION}.off"));
     if path.exists() {
@@ -85,7 +85,7 @@ pub fn relaxed_mesh(n: usize, seed: u64) -> Result<(Mesh, MeshOrigin), crate::Ru
 }
 
 /// Generates the relaxed mesh (no cache), lengths in µm.
-pub fn generate(n: usize, seed: u64) -> Result<(Mesh, RelaxReport), crate::RunError> {
+pub fn generate(n: usize, seed: u64) -> Result<(Mesh, RelaxReport), crate::context::RunError> {
     let params = ModelParams::coarse_grained(n, 300.0)?;
     let constants = constants_um_pn(&params, 0.0, 0.0);
     let opts = MeshGenOptions::new(n, seed);
@@ -94,7 +94,7 @@ pub fn generate(n: usize, seed: u64) -> Result<(Mesh, RelaxReport), crate::RunEr
 
 /// Loads a user's mesh file (lengths in µm) and puts it in the pose of the generated mesh:
 /// see [`to_principal_axes`]. Returns the mesh and the pose change (for `summary.json`).
-pub fn user_mesh(path: &Path) -> Result<(Mesh, Pose), crate::RunError> {
+pub fn user_mesh(path: &Path) -> Result<(Mesh, Pose), crate::context::RunError> {
     let mesh = meshio::read_mesh(path)?;
     Ok(to_principal_axes(mesh))
 }

@@ -32,7 +32,7 @@ use hemodpd_io::checkpoint::Checkpoint;
 use hemodpd_io::TrajectoryWriter;
 use serde::{Deserialize, Serialize};
 
-use crate::{RunContext, RunError};
+use crate::context::{RunContext, RunError};
 
 /// Name of the checkpoint file in the output directory.
 pub const CHECKPOINT_FILE: &str = "checkpoint.h5";
@@ -160,6 +160,7 @@ impl DirLock {
                     let _ = file.read_to_string(&mut text);
                     return Err(RunError::Locked {
                         dir: dir.to_path_buf(),
+                        lock_file: path.clone(),
                         holder: describe_holder(&text),
                     });
                 }
@@ -190,6 +191,7 @@ impl DirLock {
         }
         Err(RunError::Locked {
             dir: dir.to_path_buf(),
+            lock_file: path,
             holder: "processes that keep replacing its lock file".into(),
         })
     }

@@ -22,11 +22,11 @@ use crate::cell::checkpoint::{open_cell_trajectory, restore_cell_run, save_cell_
 use crate::cell::section::{cell_params, resolve_substeps, thermal_choice, validate_cell, validate_model, ModelKeys};
 use crate::cell::summary::{crossings_json, membrane_viscosity_summary, step_shares};
 use crate::cell::{describe_engine_error, CellSection, CellSim, OUTER, VERTEX_MASS};
+use crate::context::{RunContext, RunError};
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
 use crate::run_dir::{engine_err, out_err, TRAJECTORY_FILE};
 use crate::units::{self, um_to_m, FluidModel, PhysicalSystem, UnitMapping};
-use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::params::CAPILLARY_FLUID_WALL_SLIP;
 use hemodpd_engine::walls::{self, WallSetup, WallShape};
@@ -1088,6 +1088,47 @@ pub fn write_motion_csv(path: &std::path::Path, rows: &[FrameMotion]) -> Result<
         path: path.to_path_buf(),
         source,
     })
+}
+
+impl crate::kind::Kind for ShearScenario {
+    const NAME: &'static str = "shear";
+    const SWEEP_COLUMNS: &'static [crate::kind::SweepColumn] = &[
+        ("stress (Pa)", "/shear/shear_stress_pa", false),
+        ("Ca", "/groups_si/capillary_number", false),
+        ("class", "/motion/class", false),
+        ("TTF/rate", "/motion/tank_treading_frequency_over_shear_rate", false),
+        ("flips/s", "/motion/tumbling_rate_flips_per_s", false),
+        ("incl (deg)", "/motion/mean_inclination_deg", false),
+        ("swing (deg)", "/motion/inclination_amplitude_deg", false),
+    ];
+    fn validate(&self, file: &str) -> Result<(), ScenarioError> {
+        validate(self, file)
+    }
+    fn seed(&self) -> u64 {
+        self.seed
+    }
+    fn set_base_dir(&mut self, dir: std::path::PathBuf) {
+        self.base_dir = dir;
+    }
+    fn check_files(&self, file: &str) -> Result<(), ScenarioError> {
+        match &self.cell.mesh_file {
+            Some(m) => crate::kind::check_mesh_file(file, "cell.mesh_file", &self.base_dir, m, self.cell.vertices),
+            None => Ok(()),
+        }
+    }
+    fn schedule_end(&self) -> (u64, &'static str) {
+        (Plan::new(self).map(|p| p.steps).unwrap_or(u64::MAX), "steps")
+    }
+    fn run_from(
+        &self,
+        ctx: &RunContext,
+        checkpoint: Option<&hemodpd_io::checkpoint::Checkpoint>,
+    ) -> Result<serde_json::Value, RunError> {
+        run_from(self, ctx, checkpoint)
+    }
+    fn explain_units(&self) -> Option<Result<String, RunError>> {
+        Some(ShearScenario::explain_units(self))
+    }
 }
 
 #[cfg(test)]

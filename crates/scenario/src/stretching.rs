@@ -1,10 +1,10 @@
 //! The optical-tweezers stretching scenario (SPEC §2): no fluid, static equilibrium per force,
 //! diameters compared with Mills et al. (2004).
 
+use crate::context::{RunContext, RunError};
 use crate::file::{one, yes, Check, ScenarioError};
 use crate::mesh_cache::{self, constants_um_pn};
 use crate::run_dir::{self, out_err};
-use crate::{RunContext, RunError};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};
 use hemodpd_io::{FrameScalar, Quantity, RunMetadata, TrajectoryWriter, UnitSystem};
 use hemodpd_membrane::params::ModelParams;
@@ -216,7 +216,7 @@ pub fn validate(s: &StretchingScenario, file: &str) -> Result<(), ScenarioError>
 }
 
 /// The mesh file the scenario names, if any, must exist, be readable and have
-/// `membrane.vertices` vertices (relative to `base_dir`, which [`crate::load`] sets).
+/// `membrane.vertices` vertices (relative to `base_dir`, which [`crate::load`](crate::registry::load) sets).
 pub(crate) fn check_files(st: &StretchingScenario, file: &str) -> Result<(), ScenarioError> {
     let Some(m) = &st.membrane.mesh_file else {
         return Ok(());
@@ -561,7 +561,7 @@ pub fn run_from(
     let failed = std::cell::Cell::new(false);
     let stop = || {
         failed.get()
-            || crate::INTERRUPTED.load(std::sync::atomic::Ordering::Relaxed)
+            || crate::context::INTERRUPTED.load(std::sync::atomic::Ordering::Relaxed)
             || ctx.stop_at_step == Some(completed.get() as u64)
     };
     let mut step_error = None;

@@ -4,9 +4,10 @@
 
 use super::section::{cell_params, CellSection, ModelKeys, ViscosityForm};
 use super::{INNER, MEMBRANE, OUTER, VERTEX_MASS, WALL};
+use crate::context::RunError;
+use crate::mesh_cache;
 use crate::run_dir::engine_err;
 use crate::units::{self, FluidModel, UnitMapping};
-use crate::{mesh_cache, RunError};
 use glam::DVec3;
 use hemodpd_engine::walls::{self, Reflection, WallConfig, WallShape, Walls};
 use hemodpd_engine::{ForceField, PairParams, Particles, SimConfig, Simulation, Timed, TypeSpec};

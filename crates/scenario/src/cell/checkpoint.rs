@@ -7,8 +7,8 @@
 
 use super::build::{cell_config, membrane_model, plan_field, plan_walls, CellPlan, CellSim};
 use super::MEMBRANE;
+use crate::context::{RunContext, RunError};
 use crate::run_dir::{self, engine_err, particles_from_checkpoint, particles_into_checkpoint};
-use crate::{RunContext, RunError};
 use hemodpd_engine::walls::WallsState;
 use hemodpd_engine::{PeriodicBox, SimState, Simulation, Timed};
 use hemodpd_io::checkpoint::{Checkpoint, ScalarValue};

@@ -2,9 +2,9 @@
 //! shared keys of `[model]` (declared once by [`model_section!`]) and their validation, and
 //! what they resolve to (membrane parameters, the thermal choice, membrane sub-steps).
 
+use crate::context::RunError;
 use crate::file::ScenarioError;
 use crate::units::{self, ThermalChoice};
-use crate::RunError;
 use hemodpd_membrane::coupling::MembraneReflection;
 use hemodpd_membrane::params::ModelParams;
 use hemodpd_membrane::viscosity::MembraneViscosity;

@@ -6,8 +6,8 @@ use super::measure::{
 };
 use super::run::{run_plan, wall_results, write_csv};
 use super::{validate_wall_common, Channel, Plan, WallOutput, WallRunSection, WallsSection};
+use crate::context::{RunContext, RunError};
 use crate::file::{Check, FluidSection, ScenarioError};
-use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::walls::{WallShape, Walls};
 use hemodpd_engine::Simulation;
@@ -225,28 +225,14 @@ pub fn run_couette(
     wall_results(&plan, ctx, sim, &m, &source, checkpoint.map(|c| c.step), specific)
 }
 
-impl crate::kind::Kind for CouetteScenario {
-    const NAME: &'static str = "couette";
-    const SWEEP_COLUMNS: &'static [crate::kind::SweepColumn] = &[
+super::wall_kind!(
+    CouetteScenario,
+    "couette",
+    run_couette,
+    [
         ("viscosity", "/viscosity/value", false),
         ("viscosity SE", "/viscosity/standard_error", false),
         ("slip lower", "/line/slip_fraction_lower", false),
         ("slip upper", "/line/slip_fraction_upper", false),
-    ];
-    fn validate(&self, file: &str) -> Result<(), ScenarioError> {
-        validate(self, file)
-    }
-    fn seed(&self) -> u64 {
-        self.seed
-    }
-    fn set_base_dir(&mut self, dir: std::path::PathBuf) {
-        self.base_dir = dir;
-    }
-    /// Steps: adaptation, flow development and sampling.
-    fn schedule_end(&self) -> (u64, &'static str) {
-        (super::scheduled_steps(&self.walls, &self.run), "steps")
-    }
-    fn run_from(&self, ctx: &RunContext, checkpoint: Option<&Checkpoint>) -> Result<serde_json::Value, RunError> {
-        run_couette(self, ctx, checkpoint)
-    }
-}
+    ]
+);

@@ -48,6 +48,38 @@ use std::path::{Path, PathBuf};
 
 // ---- the scenario files' shared sections: `[walls]`, `[run]`, `[output]` ----
 
+/// `impl Kind` of a wall kind: `wall_kind!(Type, "name", run_function, [sweep columns])`. The
+/// two wall kinds differ only in these.
+macro_rules! wall_kind {
+    ($ty:ty, $name:literal, $run:ident, [$($col:expr),* $(,)?]) => {
+        impl crate::kind::Kind for $ty {
+            const NAME: &'static str = $name;
+            const SWEEP_COLUMNS: &'static [crate::kind::SweepColumn] = &[$($col),*];
+            fn validate(&self, file: &str) -> Result<(), crate::file::ScenarioError> {
+                validate(self, file)
+            }
+            fn seed(&self) -> u64 {
+                self.seed
+            }
+            fn set_base_dir(&mut self, dir: std::path::PathBuf) {
+                self.base_dir = dir;
+            }
+            /// Steps: adaptation, flow development and sampling.
+            fn schedule_end(&self) -> (u64, &'static str) {
+                (super::scheduled_steps(&self.walls, &self.run), "steps")
+            }
+            fn run_from(
+                &self,
+                ctx: &crate::context::RunContext,
+                checkpoint: Option<&hemodpd_io::checkpoint::Checkpoint>,
+            ) -> Result<serde_json::Value, crate::context::RunError> {
+                $run(self, ctx, checkpoint)
+            }
+        }
+    };
+}
+pub(crate) use wall_kind;
+
 /// The steps a wall scenario's schedule takes: adaptation (if adaptive), flow development and
 /// sampling.
 pub(crate) fn scheduled_steps(w: &WallsSection, r: &WallRunSection) -> u64 {
@@ -185,9 +217,10 @@ pub struct WallRunSection {
     /// Bins of the velocity/density profile across the channel (default 16).
     #[serde(default = "w_profile_bins")]
     pub profile_bins: usize,
-    /// Also time the same number of fluid particles in a periodic box, for the wall overhead
-    /// (default true).
-    #[serde(default = "yes")]
+    /// After the run, time 500 more steps of it and of a periodic box with the same number of
+    /// fluid particles, for the wall overhead (default false: a benchmark, outside the schedule
+    /// and its checkpoints; docs/walls.md, "Cost").
+    #[serde(default)]
     pub measure_overhead: bool,
 }
 

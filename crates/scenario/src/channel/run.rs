@@ -2,12 +2,12 @@
 //! initial near-wall force), checkpoints, frames, the phases, sampling and flow control of the
 //! [`Stepper`], and the results every wall kind reports.
 
+use crate::context::{RunContext, RunError};
 use crate::driver::{self, Stepper};
 use crate::run_dir::{
     self, engine_err, json_from_checkpoint, json_into_checkpoint, out_err, particles_from_checkpoint,
     particles_into_checkpoint, CHECKPOINT_FILE, TRAJECTORY_FILE,
 };
-use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::walls::{self, WallForceProfile, WallSetup, WallShape, Walls, WallsState};
 use hemodpd_engine::{init, ForceField, PeriodicBox, SimConfig, SimState, Simulation};

@@ -10,6 +10,11 @@
 //! with the Hochmuth fit. The stepping loop, frames, checkpoints and Ctrl-C are
 //! [`crate::driver`]'s.
 
+mod measures;
+pub use measures::{
+    analyze_trajectory, decay_time, fit_hochmuth, length_over_width, write_measures_csv, FrameMeasures, HochmuthFit,
+};
+
 use crate::cell::build::{
     cell_membrane_viscosity, cell_mesh_um, check_membrane_timestep, membrane_model, place_cell, CellPlan,
 };
@@ -17,11 +22,11 @@ use crate::cell::checkpoint::{open_cell_trajectory, restore_cell_run, save_cell_
 use crate::cell::section::{cell_params, resolve_substeps, thermal_choice, validate_cell, validate_model, ModelKeys};
 use crate::cell::summary::{crossings_json, membrane_viscosity_summary, step_shares};
 use crate::cell::{CellSection, CellSim, VERTEX_MASS};
+use crate::context::{RunContext, RunError};
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
 use crate::run_dir::{engine_err, out_err, TRAJECTORY_FILE};
 use crate::units::{self, um_to_m, FluidModel, PhysicalSystem, ThermalChoice, UnitMapping, MMHG_PER_MM_IN_PA_PER_M};
-use crate::{RunContext, RunError};
 use glam::DVec3;
 use hemodpd_engine::params::CAPILLARY_FLUID_WALL_SLIP;
 use hemodpd_engine::walls::{self, WallSetup, WallShape};
@@ -1071,121 +1076,6 @@ fn restore(plan: &Plan, ck: &Checkpoint) -> Result<Restored<ProtocolState>, RunE
 // ---------------------------------------------------------------------------------------------
 // Results
 
-/// The cell's length over width in the plane across the tube (x, y; the plane of the resting
-/// disc and of the stretch), as seen face on, the way Hochmuth et al. measured it: the extents
-/// of the vertices along the principal axes of their (x, y) covariance, the larger over the
-/// smaller (so it does not depend on how the cell has turned about the tube axis).
-pub fn length_over_width(x: &[DVec3]) -> f64 {
-    let n = x.len().max(1) as f64;
-    let c = x.iter().fold(DVec3::ZERO, |a, p| a + *p) / n;
-    let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
-    for p in x {
-        let d = *p - c;
-        sxx += d.x * d.x;
-        syy += d.y * d.y;
-        sxy += d.x * d.y;
-    }
-    let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
-    let (u, w) = (
-        DVec3::new(theta.cos(), theta.sin(), 0.0),
-        DVec3::new(-theta.sin(), theta.cos(), 0.0),
-    );
-    let extent = |a: DVec3| {
-        let (lo, hi) = x.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
-            (lo.min(p.dot(a)), hi.max(p.dot(a)))
-        });
-        hi - lo
-    };
-    let (l, w) = (extent(u), extent(w));
-    l.max(w) / l.min(w)
-}
-
-/// A fit of Hochmuth's Kelvin–Voigt recovery to L/W = λ(t):
-/// ((λ² − λ∞²)(λ0² + λ∞²)) / ((λ² + λ∞²)(λ0² − λ∞²)) = exp(−t/t_c).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct HochmuthFit {
-    /// Recovery time t_c (the unit of `t`).
-    pub t_c: f64,
-    /// λ0 = λ(t0), the first point.
-    pub lambda_0: f64,
-    /// λ∞, fitted.
-    pub lambda_inf: f64,
-    /// Root-mean-square residual of λ.
-    pub rms: f64,
-}
-
-/// Fits Hochmuth's recovery (see [`HochmuthFit`]) to `lambda` at times `t` (from `t[0]`):
-/// λ0 is the first point; t_c and λ∞ minimise Σ(λ_model − λ)², λ∞ searched over
-/// [0.8, min λ] on a grid refined three times, t_c by golden section on ln t_c for each λ∞.
-/// `None` with fewer than 4 points, or when λ does not fall.
-pub fn fit_hochmuth(t: &[f64], lambda: &[f64]) -> Option<HochmuthFit> {
-    let n = t.len().min(lambda.len());
-    if n < 4 || !t[..n].iter().chain(&lambda[..n]).all(|v| v.is_finite()) {
-        return None;
-    }
-    let l0 = lambda[0];
-    let lmin = lambda[..n].iter().cloned().fold(f64::INFINITY, f64::min);
-    if lmin >= l0 {
-        return None;
-    }
-    let model = |tt: f64, tc: f64, li: f64| {
-        let k = (l0 * l0 - li * li) / (l0 * l0 + li * li);
-        let y = k * (-(tt - t[0]) / tc).exp();
-        li * ((1.0 + y) / (1.0 - y)).sqrt()
-    };
-    let sse = |tc: f64, li: f64| (0..n).map(|i| (model(t[i], tc, li) - lambda[i]).powi(2)).sum::<f64>();
-    let span = (t[n - 1] - t[0]).max(1e-300);
-    let best_tc = |li: f64| {
-        // golden section on ln t_c over [span/1e4, span·100]
-        let (mut a, mut b) = ((span * 1e-4).ln(), (span * 1e2).ln());
-        let g = 0.5 * (5f64.sqrt() - 1.0);
-        let f = |x: f64| sse(x.exp(), li);
-        let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
-        let (mut fc, mut fd) = (f(c), f(d));
-        for _ in 0..80 {
-            if fc < fd {
-                b = d;
-                d = c;
-                fd = fc;
-                c = b - g * (b - a);
-                fc = f(c);
-            } else {
-                a = c;
-                c = d;
-                fc = fd;
-                d = a + g * (b - a);
-                fd = f(d);
-            }
-        }
-        let x = 0.5 * (a + b);
-        (x.exp(), f(x))
-    };
-    let (mut lo, mut hi) = (0.8f64.min(lmin * 0.9), lmin.min(l0 * (1.0 - 1e-9)));
-    let mut best = (f64::NAN, f64::NAN, f64::INFINITY);
-    for _ in 0..4 {
-        let m = 40;
-        for k in 0..=m {
-            let li = lo + (hi - lo) * k as f64 / m as f64;
-            if li >= l0 {
-                continue;
-            }
-            let (tc, e) = best_tc(li);
-            if e < best.2 {
-                best = (tc, li, e);
-            }
-        }
-        let h = (hi - lo) / 40.0;
-        lo = (best.1 - 2.0 * h).max(lo);
-        hi = (best.1 + 2.0 * h).min(hi);
-    }
-    best.2.is_finite().then(|| HochmuthFit {
-        t_c: best.0,
-        lambda_0: l0,
-        lambda_inf: best.1,
-        rms: (best.2 / n as f64).sqrt(),
-    })
-}
-
 /// Mean of `f` over the last quarter of a stage's samples.
 fn tail_mean(samples: &[&Sample], f: impl Fn(&Sample) -> f64) -> f64 {
     let n = samples.len();
@@ -1194,31 +1084,6 @@ fn tail_mean(samples: &[&Sample], f: impl Fn(&Sample) -> f64) -> f64 {
     }
     let tail = &samples[n - (n / 4).max(1)..];
     tail.iter().map(|s| f(s)).sum::<f64>() / tail.len() as f64
-}
-
-/// Time constant of the decay of `y(t)` towards its final level (the mean of the last fifth):
-/// the first time y − y_end falls below e⁻¹ (y(0) − y_end), linearly interpolated. NaN when it
-/// does not decay.
-pub fn decay_time(t: &[f64], y: &[f64]) -> f64 {
-    let n = y.len();
-    if n < 5 {
-        return f64::NAN;
-    }
-    let tail = &y[n - (n / 5).max(1)..];
-    let end = tail.iter().sum::<f64>() / tail.len() as f64;
-    let a0 = y[0] - end;
-    if a0.abs() < 1e-12 {
-        return f64::NAN;
-    }
-    let level = a0 * (-1.0f64).exp();
-    for k in 1..n {
-        let (p, q) = (y[k - 1] - end, y[k] - end);
-        if (q / a0) <= (level / a0) {
-            let w = ((p - level) / (p - q)).clamp(0.0, 1.0);
-            return t[k - 1] + w * (t[k] - t[k - 1]) - t[0];
-        }
-    }
-    f64::NAN
 }
 
 fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
@@ -1446,106 +1311,44 @@ pub fn run_from(
 // ---------------------------------------------------------------------------------------------
 // Analysis of a trajectory after the run
 
-/// The capillary measures of one trajectory frame, SI (µm for lengths), as `hemodpd analyze`
-/// writes them (`capillary.csv`, the columns of the run's `cell.csv`).
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct FrameMeasures {
-    pub step: u64,
-    pub time_s: f64,
-    pub stage: f64,
-    pub cell_velocity_m_per_s: f64,
-    pub fluid_velocity_m_per_s: f64,
-    pub axial_length_um: f64,
-    pub max_radius_um: f64,
-    pub deformation_index: f64,
-    pub concavity_depth_um: f64,
-    pub distance_from_rest_um: f64,
-    pub area_deviation: f64,
-    pub volume_deviation: f64,
-    pub membrane_temperature_ratio: f64,
-}
-
-/// Computes [`FrameMeasures`] for every membrane frame of a capillary trajectory (the same
-/// definitions as the run's time series: [`cellshape`], the tube along z).
-pub fn analyze_trajectory(path: &std::path::Path) -> Result<Vec<FrameMeasures>, RunError> {
-    use hemodpd_io::TrajectoryReader;
-    let r = TrajectoryReader::open(path).map_err(out_err)?;
-    let meta = r.metadata();
-    if meta.scenario_name != "capillary" {
-        return Err(RunError::Output(format!(
-            "{}: a {} trajectory, not a capillary one",
-            path.display(),
-            meta.scenario_name
-        )));
+impl crate::kind::Kind for CapillaryScenario {
+    const NAME: &'static str = "capillary";
+    const SWEEP_COLUMNS: &'static [crate::kind::SweepColumn] = &[
+        ("cell velocity (m/s)", "/driven/cell_velocity_m_per_s", false),
+        ("fluid velocity (m/s)", "/driven/fluid_mean_velocity_m_per_s", false),
+        ("length (um)", "/driven/axial_length_um", false),
+        ("DI", "/driven/deformation_index", false),
+        ("misplaced", "/crossings/misplaced_total", false),
+    ];
+    fn validate(&self, file: &str) -> Result<(), ScenarioError> {
+        validate(self, file)
     }
-    let units = meta.units.clone();
-    let triangles = r.triangles().map_err(out_err)?;
-    let reference = r.membrane_reference().map_err(out_err)?;
-    let profile = RestProfile::new(&EvansFung::healthy_um(), 400);
-    let scalar = |name: &str| r.membrane_scalar(name).unwrap_or_default();
-    let (fluid_v, stage) = (scalar("fluid_velocity"), scalar("stage"));
-    let mut out = Vec::new();
-    for i in 0..r.membrane_frames().map_err(out_err)? {
-        let fr = r.membrane_frame(i).map_err(out_err)?;
-        let x_um: Vec<DVec3> = fr.positions.iter().map(|p| *p * 1e6).collect();
-        let m = cellshape::metrics(&x_um, AXIS, &profile);
-        let mesh = Mesh::new(fr.positions.clone(), triangles.clone())?;
-        let (a, v) = (mesh.area(), mesh.volume());
-        let (a0, v0) = reference.unwrap_or((a, v));
-        let (uc, kbt) = match &fr.velocities {
-            Some(vel) => {
-                let n = vel.len() as f64;
-                let mean = vel.iter().fold(DVec3::ZERO, |s, v| s + *v) / n;
-                let kin: f64 = vel.iter().map(|v| (*v - mean).length_squared()).sum();
-                // vertex mass = one model mass unit; the fluid's kBT = one model energy unit
-                (mean[AXIS], units.mass_kg() * kin / (3.0 * (n - 1.0)) / units.energy_j)
-            }
-            None => (f64::NAN, f64::NAN),
-        };
-        out.push(FrameMeasures {
-            step: fr.step,
-            time_s: fr.time,
-            stage: stage.get(i).copied().unwrap_or(f64::NAN),
-            cell_velocity_m_per_s: uc,
-            fluid_velocity_m_per_s: fluid_v.get(i).copied().unwrap_or(f64::NAN),
-            axial_length_um: m.axial_length,
-            max_radius_um: m.max_radius,
-            deformation_index: m.deformation_index,
-            concavity_depth_um: m.concavity_depth,
-            distance_from_rest_um: m.distance_from_rest,
-            area_deviation: a / a0 - 1.0,
-            volume_deviation: v / v0 - 1.0,
-            membrane_temperature_ratio: kbt,
-        });
+    fn seed(&self) -> u64 {
+        self.seed
     }
-    Ok(out)
-}
-
-/// Writes [`FrameMeasures`] as CSV.
-pub fn write_measures_csv(path: &std::path::Path, rows: &[FrameMeasures]) -> Result<(), RunError> {
-    let mut s = String::from("step,time_s,stage,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio\n");
-    for r in rows {
-        s += &format!(
-            "{},{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
-            r.step,
-            r.time_s,
-            r.stage,
-            r.cell_velocity_m_per_s,
-            r.fluid_velocity_m_per_s,
-            r.axial_length_um,
-            r.max_radius_um,
-            r.deformation_index,
-            r.concavity_depth_um,
-            r.distance_from_rest_um,
-            r.area_deviation,
-            r.volume_deviation,
-            r.membrane_temperature_ratio
-        );
+    fn set_base_dir(&mut self, dir: std::path::PathBuf) {
+        self.base_dir = dir;
     }
-    std::fs::write(path, s).map_err(|source| RunError::Io {
-        path: path.to_path_buf(),
-        source,
-    })
+    fn check_files(&self, file: &str) -> Result<(), ScenarioError> {
+        match &self.cell.mesh_file {
+            Some(m) => crate::kind::check_mesh_file(file, "cell.mesh_file", &self.base_dir, m, self.cell.vertices),
+            None => Ok(()),
+        }
+    }
+    /// Steps of the longest schedule (stages that end when steady end earlier).
+    fn schedule_end(&self) -> (u64, &'static str) {
+        (Plan::new(self).map(|p| p.max_steps()).unwrap_or(u64::MAX), "steps")
+    }
+    fn run_from(
+        &self,
+        ctx: &RunContext,
+        checkpoint: Option<&hemodpd_io::checkpoint::Checkpoint>,
+    ) -> Result<serde_json::Value, RunError> {
+        run_from(self, ctx, checkpoint)
+    }
+    fn explain_units(&self) -> Option<Result<String, RunError>> {
+        Some(CapillaryScenario::explain_units(self))
+    }
 }
 
 #[cfg(test)]

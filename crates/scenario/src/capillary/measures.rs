@@ -1,0 +1,247 @@
+//! The capillary measures that stand apart from the run: the cell's length over width, the
+//! Hochmuth (1979) fit of a recovery and a decay time, and the measures of every frame of a
+//! capillary trajectory (`hemodpd analyze`).
+
+use super::*;
+
+/// The cell's length over width in the plane across the tube (x, y; the plane of the resting
+/// disc and of the stretch), as seen face on, the way Hochmuth et al. measured it: the extents
+/// of the vertices along the principal axes of their (x, y) covariance, the larger over the
+/// smaller (so it does not depend on how the cell has turned about the tube axis).
+pub fn length_over_width(x: &[DVec3]) -> f64 {
+    let n = x.len().max(1) as f64;
+    let c = x.iter().fold(DVec3::ZERO, |a, p| a + *p) / n;
+    let (mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0);
+    for p in x {
+        let d = *p - c;
+        sxx += d.x * d.x;
+        syy += d.y * d.y;
+        sxy += d.x * d.y;
+    }
+    let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    let (u, w) = (
+        DVec3::new(theta.cos(), theta.sin(), 0.0),
+        DVec3::new(-theta.sin(), theta.cos(), 0.0),
+    );
+    let extent = |a: DVec3| {
+        let (lo, hi) = x.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+            (lo.min(p.dot(a)), hi.max(p.dot(a)))
+        });
+        hi - lo
+    };
+    let (l, w) = (extent(u), extent(w));
+    l.max(w) / l.min(w)
+}
+
+/// A fit of Hochmuth's Kelvin–Voigt recovery to L/W = λ(t):
+/// ((λ² − λ∞²)(λ0² + λ∞²)) / ((λ² + λ∞²)(λ0² − λ∞²)) = exp(−t/t_c).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct HochmuthFit {
+    /// Recovery time t_c (the unit of `t`).
+    pub t_c: f64,
+    /// λ0 = λ(t0), the first point.
+    pub lambda_0: f64,
+    /// λ∞, fitted.
+    pub lambda_inf: f64,
+    /// Root-mean-square residual of λ.
+    pub rms: f64,
+}
+
+/// Fits Hochmuth's recovery (see [`HochmuthFit`]) to `lambda` at times `t` (from `t[0]`):
+/// λ0 is the first point; t_c and λ∞ minimise Σ(λ_model − λ)², λ∞ searched over
+/// [0.8, min λ] on a grid refined three times, t_c by golden section on ln t_c for each λ∞.
+/// `None` with fewer than 4 points, or when λ does not fall.
+pub fn fit_hochmuth(t: &[f64], lambda: &[f64]) -> Option<HochmuthFit> {
+    let n = t.len().min(lambda.len());
+    if n < 4 || !t[..n].iter().chain(&lambda[..n]).all(|v| v.is_finite()) {
+        return None;
+    }
+    let l0 = lambda[0];
+    let lmin = lambda[..n].iter().cloned().fold(f64::INFINITY, f64::min);
+    if lmin >= l0 {
+        return None;
+    }
+    let model = |tt: f64, tc: f64, li: f64| {
+        let k = (l0 * l0 - li * li) / (l0 * l0 + li * li);
+        let y = k * (-(tt - t[0]) / tc).exp();
+        li * ((1.0 + y) / (1.0 - y)).sqrt()
+    };
+    let sse = |tc: f64, li: f64| (0..n).map(|i| (model(t[i], tc, li) - lambda[i]).powi(2)).sum::<f64>();
+    let span = (t[n - 1] - t[0]).max(1e-300);
+    let best_tc = |li: f64| {
+        // golden section on ln t_c over [span/1e4, span·100]
+        let (mut a, mut b) = ((span * 1e-4).ln(), (span * 1e2).ln());
+        let g = 0.5 * (5f64.sqrt() - 1.0);
+        let f = |x: f64| sse(x.exp(), li);
+        let (mut c, mut d) = (b - g * (b - a), a + g * (b - a));
+        let (mut fc, mut fd) = (f(c), f(d));
+        for _ in 0..80 {
+            if fc < fd {
+                b = d;
+                d = c;
+                fd = fc;
+                c = b - g * (b - a);
+                fc = f(c);
+            } else {
+                a = c;
+                c = d;
+                fc = fd;
+                d = a + g * (b - a);
+                fd = f(d);
+            }
+        }
+        let x = 0.5 * (a + b);
+        (x.exp(), f(x))
+    };
+    let (mut lo, mut hi) = (0.8f64.min(lmin * 0.9), lmin.min(l0 * (1.0 - 1e-9)));
+    let mut best = (f64::NAN, f64::NAN, f64::INFINITY);
+    for _ in 0..4 {
+        let m = 40;
+        for k in 0..=m {
+            let li = lo + (hi - lo) * k as f64 / m as f64;
+            if li >= l0 {
+                continue;
+            }
+            let (tc, e) = best_tc(li);
+            if e < best.2 {
+                best = (tc, li, e);
+            }
+        }
+        let h = (hi - lo) / 40.0;
+        lo = (best.1 - 2.0 * h).max(lo);
+        hi = (best.1 + 2.0 * h).min(hi);
+    }
+    best.2.is_finite().then(|| HochmuthFit {
+        t_c: best.0,
+        lambda_0: l0,
+        lambda_inf: best.1,
+        rms: (best.2 / n as f64).sqrt(),
+    })
+}
+
+/// Time constant of the decay of `y(t)` towards its final level (the mean of the last fifth):
+/// the first time y − y_end falls below e⁻¹ (y(0) − y_end), linearly interpolated. NaN when it
+/// does not decay.
+pub fn decay_time(t: &[f64], y: &[f64]) -> f64 {
+    let n = y.len();
+    if n < 5 {
+        return f64::NAN;
+    }
+    let tail = &y[n - (n / 5).max(1)..];
+    let end = tail.iter().sum::<f64>() / tail.len() as f64;
+    let a0 = y[0] - end;
+    if a0.abs() < 1e-12 {
+        return f64::NAN;
+    }
+    let level = a0 * (-1.0f64).exp();
+    for k in 1..n {
+        let (p, q) = (y[k - 1] - end, y[k] - end);
+        if (q / a0) <= (level / a0) {
+            let w = ((p - level) / (p - q)).clamp(0.0, 1.0);
+            return t[k - 1] + w * (t[k] - t[k - 1]) - t[0];
+        }
+    }
+    f64::NAN
+}
+
+/// The capillary measures of one trajectory frame, SI (µm for lengths), as `hemodpd analyze`
+/// writes them (`capillary.csv`, the columns of the run's `cell.csv`).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct FrameMeasures {
+    pub step: u64,
+    pub time_s: f64,
+    pub stage: f64,
+    pub cell_velocity_m_per_s: f64,
+    pub fluid_velocity_m_per_s: f64,
+    pub axial_length_um: f64,
+    pub max_radius_um: f64,
+    pub deformation_index: f64,
+    pub concavity_depth_um: f64,
+    pub distance_from_rest_um: f64,
+    pub area_deviation: f64,
+    pub volume_deviation: f64,
+    pub membrane_temperature_ratio: f64,
+}
+
+/// Computes [`FrameMeasures`] for every membrane frame of a capillary trajectory (the same
+/// definitions as the run's time series: [`cellshape`], the tube along z).
+pub fn analyze_trajectory(path: &std::path::Path) -> Result<Vec<FrameMeasures>, RunError> {
+    use hemodpd_io::TrajectoryReader;
+    let r = TrajectoryReader::open(path).map_err(out_err)?;
+    let meta = r.metadata();
+    if meta.scenario_name != "capillary" {
+        return Err(RunError::Output(format!(
+            "{}: a {} trajectory, not a capillary one",
+            path.display(),
+            meta.scenario_name
+        )));
+    }
+    let units = meta.units.clone();
+    let triangles = r.triangles().map_err(out_err)?;
+    let reference = r.membrane_reference().map_err(out_err)?;
+    let profile = RestProfile::new(&EvansFung::healthy_um(), 400);
+    let scalar = |name: &str| r.membrane_scalar(name).unwrap_or_default();
+    let (fluid_v, stage) = (scalar("fluid_velocity"), scalar("stage"));
+    let mut out = Vec::new();
+    for i in 0..r.membrane_frames().map_err(out_err)? {
+        let fr = r.membrane_frame(i).map_err(out_err)?;
+        let x_um: Vec<DVec3> = fr.positions.iter().map(|p| *p * 1e6).collect();
+        let m = cellshape::metrics(&x_um, AXIS, &profile);
+        let mesh = Mesh::new(fr.positions.clone(), triangles.clone())?;
+        let (a, v) = (mesh.area(), mesh.volume());
+        let (a0, v0) = reference.unwrap_or((a, v));
+        let (uc, kbt) = match &fr.velocities {
+            Some(vel) => {
+                let n = vel.len() as f64;
+                let mean = vel.iter().fold(DVec3::ZERO, |s, v| s + *v) / n;
+                let kin: f64 = vel.iter().map(|v| (*v - mean).length_squared()).sum();
+                // vertex mass = one model mass unit; the fluid's kBT = one model energy unit
+                (mean[AXIS], units.mass_kg() * kin / (3.0 * (n - 1.0)) / units.energy_j)
+            }
+            None => (f64::NAN, f64::NAN),
+        };
+        out.push(FrameMeasures {
+            step: fr.step,
+            time_s: fr.time,
+            stage: stage.get(i).copied().unwrap_or(f64::NAN),
+            cell_velocity_m_per_s: uc,
+            fluid_velocity_m_per_s: fluid_v.get(i).copied().unwrap_or(f64::NAN),
+            axial_length_um: m.axial_length,
+            max_radius_um: m.max_radius,
+            deformation_index: m.deformation_index,
+            concavity_depth_um: m.concavity_depth,
+            distance_from_rest_um: m.distance_from_rest,
+            area_deviation: a / a0 - 1.0,
+            volume_deviation: v / v0 - 1.0,
+            membrane_temperature_ratio: kbt,
+        });
+    }
+    Ok(out)
+}
+
+/// Writes [`FrameMeasures`] as CSV.
+pub fn write_measures_csv(path: &std::path::Path, rows: &[FrameMeasures]) -> Result<(), RunError> {
+    let mut s = String::from("step,time_s,stage,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio\n");
+    for r in rows {
+        s += &format!(
+            "{},{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
+            r.step,
+            r.time_s,
+            r.stage,
+            r.cell_velocity_m_per_s,
+            r.fluid_velocity_m_per_s,
+            r.axial_length_um,
+            r.max_radius_um,
+            r.deformation_index,
+            r.concavity_depth_um,
+            r.distance_from_rest_um,
+            r.area_deviation,
+            r.volume_deviation,
+            r.membrane_temperature_ratio
+        );
+    }
+    std::fs::write(path, s).map_err(|source| RunError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
