@@ -71,6 +71,35 @@ pub const CAPILLARY_FLUID_VISCOSITY_SE: Real = 0.11;
 /// to 3 %).
 pub const CAPILLARY_FLUID_WALL_SLIP: Real = 0.194;
 
+/// Number density of the dense fluid ([`PairParams::dense`]); particle mass 1.
+pub const DENSE_FLUID_DENSITY: Real = 10.0;
+/// Time step of the dense fluid: γΔt = 0.123, where a periodic box at rest keeps its kinetic
+/// kBT within 0.2 % of 1 (`dense_fluid_timestep_scan` in crates/engine/tests/dense_fluid.rs,
+/// 8³ box, mean of 4000 steps after 1000: 1.0001 ± 0.0003 at 0.002, 1.0004 ± 0.0002 at 0.0025,
+/// 1.0011 ± 0.0002 at 0.003, 1.0339 ± 0.0003 at 0.0035; 0.004 blows up at step 119): the
+/// explicit friction's cliff is close above it.
+pub const DENSE_FLUID_TIMESTEP: Real = 0.003;
+/// Kinetic kBT of the dense fluid at rest at [`DENSE_FLUID_TIMESTEP`], relative to the
+/// thermostat's (`dense_fluid_timestep_scan`).
+pub const DENSE_FLUID_KBT_AT_TIMESTEP: Real = 1.0011;
+/// Shear viscosity of the dense fluid at [`DENSE_FLUID_TIMESTEP`], measured by reverse
+/// Poiseuille flow like [`CAPILLARY_FLUID_VISCOSITY`] (`viscosity_dense_long` in
+/// crates/engine/tests/viscosity.rs: 6 × 6 × 16, g = 1.3 (centre velocity ≈ 0.45), 4 seeds ×
+/// 2 halves × 40 000 steps: 228.08 ± 0.71, SD 2.0 per half; 2 seeds at g = 0.65 give
+/// 231.8 ± 2.0: linear response). Kinetic theory ([`kinetic_theory_viscosity`]) gives 202.1,
+/// 11 % *below* the measurement (for the capillary fluid it is 26 % above).
+pub const DENSE_FLUID_VISCOSITY: Real = 228.1;
+/// Standard error of [`DENSE_FLUID_VISCOSITY`].
+pub const DENSE_FLUID_VISCOSITY_SE: Real = 0.7;
+/// Isothermal sound speed of the dense fluid, c = √(dp/dρ) from the virial pressure at
+/// ρ = 9.5 and 10.5 (`dense_fluid_sound_speed` in crates/engine/tests/dense_fluid.rs, 8³ box,
+/// 6000 steps each: p = 934.98 ± 0.48 and 1147.16 ± 0.49, c = 14.566 ± 0.024). The
+/// Groot–Warren EOS ([`sound_speed`]), fitted at a = 25, gives 14.25 (2 % low).
+pub const DENSE_FLUID_SOUND_SPEED: Real = 14.57;
+/// Slip length of the dense fluid at a wall of its own frozen particles with bounce-back, rc,
+/// measured like [`CAPILLARY_FLUID_WALL_SLIP`] (`dense_fluid_wall_slip` in tests/capillary.rs).
+pub const DENSE_FLUID_WALL_SLIP: Real = 0.277;
+
 /// α of the Groot–Warren equation of state p = ρ kBT + α a ρ² (fitted for ρ ≥ 2, rc = 1).
 pub const GROOT_WARREN_EOS_ALPHA: Real = 0.101;
 
@@ -111,6 +140,22 @@ impl PairParams {
             kbt: 1.0,
             rc: 1.0,
             s: 0.25,
+        }
+    }
+
+    /// The dense fluid: a = 100, γ = 41, kBT = 1, rc = 1, s = 1/8 (w^D = (1 − r/rc)^¼), at
+    /// ρ = [`DENSE_FLUID_DENSITY`], m = 1, Δt = [`DENSE_FLUID_TIMESTEP`]: the density,
+    /// repulsion and weight of the Mirheo/dpdprops pipe-flow fluids, with γ at the largest
+    /// explicit friction its step tolerates. Its η·c ([`DENSE_FLUID_VISCOSITY`] ×
+    /// [`DENSE_FLUID_SOUND_SPEED`]) is ≈ 30× the capillary fluid's, which lets a cell at
+    /// capillary speeds run with κ/kBT exact (docs/units.md, "Choosing the fluid").
+    pub const fn dense() -> Self {
+        Self {
+            a: 100.0,
+            gamma: 41.0,
+            kbt: 1.0,
+            rc: 1.0,
+            s: 0.125,
         }
     }
 

@@ -5,6 +5,7 @@
 
 mod capillary_fluid;
 mod common;
+mod dense_fluid;
 mod determinism;
 mod errors;
 mod extension;

@@ -5,6 +5,7 @@
 //! flipped in the second half); a least-squares fit of A = ρg/2η in each half gives η.
 
 use glam::DVec3;
+use hemodpd_engine::params::{DENSE_FLUID_DENSITY, DENSE_FLUID_TIMESTEP, DENSE_FLUID_VISCOSITY, DENSE_FLUID_VISCOSITY_SE};
 use hemodpd_engine::{init, observe, EngineError, Extension, ForceField, PairParams, SimConfig, Simulation, StateMut};
 
 struct ReversePoiseuille {
@@ -78,6 +79,17 @@ impl RpFluid {
             density: CAPILLARY_FLUID_DENSITY,
             dt: CAPILLARY_FLUID_TIMESTEP,
             eta_guess: kinetic_theory_viscosity(&PairParams::capillary(), CAPILLARY_FLUID_DENSITY, 1.0),
+        }
+    }
+
+    /// The dense fluid ([`PairParams::dense`]) at its density and time step, started from the
+    /// profile of its shipped viscosity.
+    pub fn dense() -> Self {
+        Self {
+            pair: PairParams::dense(),
+            density: DENSE_FLUID_DENSITY,
+            dt: DENSE_FLUID_TIMESTEP,
+            eta_guess: DENSE_FLUID_VISCOSITY,
         }
     }
 }
@@ -420,5 +432,76 @@ fn viscosity_capillary_long() {
     assert!(
         (a - CAPILLARY_FLUID_VISCOSITY).abs() < 3.0 * sa,
         "measured {a} ± {sa}, CAPILLARY_FLUID_VISCOSITY = {CAPILLARY_FLUID_VISCOSITY}"
+    );
+}
+
+/// Drive of the dense-fluid runs: centre velocity ρgh²/(8η) ≈ 0.45 at η = 228, h = 8 (Mach
+/// ≈ 0.03).
+const DENSE_G: f64 = 1.3;
+
+/// Quick check of [`DENSE_FLUID_VISCOSITY`]: one 6 × 6 × 16 box of the dense fluid (5760
+/// particles) at g = [`DENSE_G`], 12 000 sampled steps of Δt = 0.003 (36 time units, ≈ 25 s in
+/// release). The halves must agree within 4 of their SD measured by `viscosity_dense_long`
+/// (scaled by √(long/quick steps)), the mean within 3 of that SD/√2 plus the constant's SE.
+#[test]
+fn viscosity_dense_quick() {
+    let r = reverse_poiseuille(&RpFluid::dense(), 6.0, 16.0, DENSE_G, 1500, 12000, 5, 11);
+    let [e1, e2] = r.interior;
+    let eta = 0.5 * (e1 + e2);
+    eprintln!(
+        "quick dense reverse Poiseuille: interior η = {e1:.2}, {e2:.2} (mean {eta:.2}; whole halves {:.2} {:.2}), kBT_pec = {:.4}",
+        r.whole[0], r.whole[1], r.peculiar_kbt
+    );
+    let sd_half = DENSE_SD_PER_HALF_40K * (40.0f64 / 12.0).sqrt();
+    assert!((e1 - e2).abs() < 4.0 * sd_half * 2f64.sqrt(), "halves {e1} {e2}");
+    assert!(
+        (eta - DENSE_FLUID_VISCOSITY).abs() < 3.0 * sd_half / 2f64.sqrt() + DENSE_FLUID_VISCOSITY_SE,
+        "η = {eta} vs {DENSE_FLUID_VISCOSITY}"
+    );
+}
+
+/// SD of one half's interior η over 40 000 sampled steps of the dense fluid at g = [`DENSE_G`]
+/// (`viscosity_dense_long`).
+const DENSE_SD_PER_HALF_40K: f64 = 2.0;
+
+/// The measurement behind [`DENSE_FLUID_VISCOSITY`]: 4 seeds of the 6 × 6 × 16 dense fluid at
+/// g = [`DENSE_G`] (8 halves, 40 000 sampled steps of Δt = 0.003 each, after 3000) and 2 seeds
+/// at half that g for linear response (≈ 8 min on 2 cores in release). Asserts the constant
+/// within 3 standard errors of the g = [`DENSE_G`] mean, the two forcings within 3 combined
+/// SE, and prints kinetic theory beside them.
+#[test]
+#[ignore]
+fn viscosity_dense_long() {
+    let mut per_g = Vec::new();
+    for (g, seeds) in [(DENSE_G, &[1u64, 2, 3, 4][..]), (0.5 * DENSE_G, &[7u64, 8][..])] {
+        let (mut interior, mut kbt) = (Vec::new(), Vec::new());
+        for &seed in seeds {
+            let r = reverse_poiseuille(&RpFluid::dense(), 6.0, 16.0, g, 3000, 40000, 5, seed);
+            eprintln!(
+                "dense fluid, g = {g}, seed {seed}: η = {:.2} {:.2} (interior {:.2} {:.2}), kBT_pec = {:.4}",
+                r.whole[0], r.whole[1], r.interior[0], r.interior[1], r.peculiar_kbt
+            );
+            interior.extend(r.interior);
+            kbt.push(r.peculiar_kbt);
+        }
+        let (i, ise) = mean_se(&interior);
+        let sd = ise * (interior.len() as f64).sqrt();
+        let (t, _) = mean_se(&kbt);
+        eprintln!(
+            "SUMMARY dense g = {g}: interior η = {i:.2} ± {ise:.2} (SD per half {sd:.2}, {} halves), kBT_pec {t:.4}",
+            interior.len()
+        );
+        per_g.push((i, ise));
+    }
+    let kt = kinetic_theory_viscosity(&PairParams::dense(), DENSE_FLUID_DENSITY, 1.0);
+    let ((a, sa), (b, sb)) = (per_g[0], per_g[1]);
+    eprintln!(
+        "SUMMARY dense fluid: η = {a:.2} ± {sa:.2} (g = {DENSE_G}), {b:.2} ± {sb:.2} (g = {}); constant {DENSE_FLUID_VISCOSITY} ± {DENSE_FLUID_VISCOSITY_SE}; kinetic theory {kt:.2}",
+        0.5 * DENSE_G
+    );
+    assert!((a - b).abs() < 3.0 * (sa * sa + sb * sb).sqrt(), "g = {DENSE_G}: {a} ± {sa}, half: {b} ± {sb}");
+    assert!(
+        (a - DENSE_FLUID_VISCOSITY).abs() < 3.0 * sa,
+        "measured {a} ± {sa}, DENSE_FLUID_VISCOSITY = {DENSE_FLUID_VISCOSITY}"
     );
 }

@@ -19,16 +19,15 @@ use crate::cell::build::{
     cell_membrane_viscosity, cell_mesh_um, check_membrane_timestep, membrane_model, place_cell, CellPlan,
 };
 use crate::cell::checkpoint::{open_cell_trajectory, restore_cell_run, save_cell_run, CheckpointHead};
-use crate::cell::section::{cell_params, resolve_substeps, thermal_choice, validate_cell, validate_model, ModelKeys};
+use crate::cell::section::{cell_mapping, cell_params, resolve_substeps, validate_cell, validate_model, ModelKeys};
 use crate::cell::summary::{crossings_json, membrane_viscosity_summary, step_shares};
 use crate::cell::{describe_engine_error, CellSection, CellSim, OUTER, VERTEX_MASS};
 use crate::context::{RunContext, RunError};
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
 use crate::run_dir::{engine_err, out_err, TRAJECTORY_FILE};
-use crate::units::{self, um_to_m, FluidModel, PhysicalSystem, UnitMapping};
+use crate::units::{self, um_to_m, FluidDecision, FluidModel, PhysicalSystem, UnitMapping};
 use glam::DVec3;
-use hemodpd_engine::params::CAPILLARY_FLUID_WALL_SLIP;
 use hemodpd_engine::walls::{self, WallSetup, WallShape};
 use hemodpd_engine::{init, SimConfig};
 use hemodpd_io::checkpoint::Checkpoint;
@@ -217,24 +216,18 @@ impl ShearScenario {
     }
 
     /// The unit mapping (errors name the scenario key).
-    pub fn mapping(&self) -> Result<(PhysicalSystem, UnitMapping), RunError> {
+    pub fn mapping(&self) -> Result<(PhysicalSystem, FluidDecision), RunError> {
         let sys = self.physical()?;
-        let m = UnitMapping::choose(
-            &sys,
-            &FluidModel::capillary(),
-            um_to_m(self.model.length_um_per_rc),
-            thermal_choice(&self.model.thermal_factor, self.model.max_mach),
-        )
-        .map_err(|e| RunError::Output(format!("unit mapping: {e}")))?;
-        Ok((sys, m))
+        let d = cell_mapping(&sys, self.model.shared())?;
+        Ok((sys, d))
     }
 
     /// The `--explain-units` text: scales, the shear in both systems and the groups.
     pub fn explain_units(&self) -> Result<String, RunError> {
-        let (sys, m) = self.mapping()?;
-        let fluid = FluidModel::capillary();
+        let (sys, d) = self.mapping()?;
+        let (m, fluid) = (&d.map, &d.fluid);
         let plan = Plan::new(self)?;
-        let (gs, gm) = (units::groups_si(&sys), units::groups_model(&sys, &m, &fluid));
+        let (gs, gm) = (units::groups_si(&sys), units::groups_model(&sys, m, fluid));
         let mut s = String::new();
         use std::fmt::Write as _;
         let _ = writeln!(
@@ -292,6 +285,7 @@ impl ShearScenario {
         for w in &m.warnings {
             let _ = writeln!(s, "  warning: {w}");
         }
+        s.push_str(&units::explain_fluid(&d));
         Ok(s)
     }
 }
@@ -399,7 +393,7 @@ pub fn validate(s: &ShearScenario, file: &str) -> Result<(), ScenarioError> {
     validate_cell(&s.cell, file)?;
     validate_model(
         s.model.shared(),
-        "1e-4–0.004 model units (default 0.0025, the capillary fluid's)",
+        "1e-4–0.004 model units (default: the fluid's, 0.0025 for \"capillary\", 0.003 for \"dense\", divided by a viscosity ratio above 1)",
         file,
     )?;
     range(
@@ -454,9 +448,11 @@ pub struct Plan<'a> {
 
 impl<'a> Plan<'a> {
     pub fn new(s: &'a ShearScenario) -> Result<Self, RunError> {
-        let (sys, map) = s.mapping()?;
-        let fluid = FluidModel::capillary();
-        let dt = s.model.timestep.unwrap_or(fluid.timestep);
+        let (sys, FluidDecision { fluid, map, .. }) = s.mapping()?;
+        let dt = s
+            .model
+            .timestep
+            .unwrap_or(fluid.default_timestep(&sys, map.length_m));
         let rate = s.shear_rate() * map.time_s;
         let mut l = DVec3::from_array(s.shear.box_um.map(|x| map.length_to_model(um_to_m(x))));
         let rc = fluid.pair.rc;
@@ -466,7 +462,7 @@ impl<'a> Plan<'a> {
                 // the no-slip planes lie b beyond the wall surfaces: surfaces H − 2b apart,
                 // each plate moving at ∓γ̇H/2; a wall slab of 2 rc across the periodic boundary
                 let h = l.y;
-                let b = CAPILLARY_FLUID_WALL_SLIP;
+                let b = fluid.wall_slip;
                 let gap = h - 2.0 * b;
                 l.y = gap + 2.0 * rc;
                 let u = 0.5 * rate * h;
@@ -896,6 +892,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             "thermal_factor": m.thermal_factor, "warnings": m.warnings,
             "timestep_s": plan.dt * t_s,
         },
+        "fluid": units::fluid_json(&plan.fluid, plan.dt),
         "groups_si": units::groups_si(&plan.sys),
         "groups_model": units::groups_model(&plan.sys, m, &plan.fluid),
         "shear": {

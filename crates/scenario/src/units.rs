@@ -22,7 +22,9 @@ use std::fmt::Write as _;
 
 use hemodpd_engine::params::{
     self, PairParams, CAPILLARY_FLUID_DENSITY, CAPILLARY_FLUID_TIMESTEP, CAPILLARY_FLUID_VISCOSITY,
-    CAPILLARY_FLUID_VISCOSITY_SE, STANDARD_FLUID_VISCOSITY, STANDARD_FLUID_VISCOSITY_SE,
+    CAPILLARY_FLUID_VISCOSITY_SE, CAPILLARY_FLUID_WALL_SLIP, DENSE_FLUID_DENSITY, DENSE_FLUID_KBT_AT_TIMESTEP,
+    DENSE_FLUID_SOUND_SPEED, DENSE_FLUID_TIMESTEP, DENSE_FLUID_VISCOSITY,
+    DENSE_FLUID_VISCOSITY_SE, DENSE_FLUID_WALL_SLIP, STANDARD_FLUID_VISCOSITY, STANDARD_FLUID_VISCOSITY_SE,
 };
 use hemodpd_membrane::params::{ModelParams, BOLTZMANN_J_PER_K};
 use hemodpd_membrane::shape::{reduced_volume, EvansFung};
@@ -63,6 +65,10 @@ pub enum UnitsError {
         value: f64,
         allowed: String,
     },
+    #[error("`fluid` = \"{name}\" is not a fluid of the table: allowed \"auto\" or one of {allowed}")]
+    UnknownFluid { name: String, allowed: String },
+    #[error("`fluid` = \"auto\": no fluid of the table meets the bounds ({reasons}); allowed: a larger max_mach or max_reynolds, a thermal factor above 1, a lower velocity, or a finer length_um_per_rc")]
+    NoFluid { reasons: String },
 }
 
 impl UnitsError {
@@ -70,6 +76,7 @@ impl UnitsError {
     pub fn key(&self) -> &'static str {
         match self {
             UnitsError::OutOfRange { key, .. } => key,
+            UnitsError::UnknownFluid { .. } | UnitsError::NoFluid { .. } => "fluid",
         }
     }
 }
@@ -86,9 +93,13 @@ fn positive(key: &'static str, value: f64) -> Result<(), UnitsError> {
     }
 }
 
-/// A DPD fluid with its measured properties, all in model units (rc, kBT, m).
+/// A DPD fluid with its measured properties, all in model units (rc, kBT, m). The fluids a
+/// scenario can run with are in [`FluidModel::table`]; every number there was measured by this
+/// engine, and the test named in [`measured_by`](Self::measured_by) re-measures it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FluidModel {
+    /// The name a scenario file gives it (`model.fluid`).
+    pub name: &'static str,
     /// Pair parameters of the fluid.
     pub pair: PairParams,
     /// Number density n (particles per rc³).
@@ -99,18 +110,32 @@ pub struct FluidModel {
     pub viscosity: f64,
     /// Standard error of [`viscosity`](Self::viscosity).
     pub viscosity_se: f64,
-    /// Isothermal sound speed c_M from the Groot–Warren EOS ([`params::sound_speed`]).
+    /// Isothermal sound speed c_M, measured (dp/dρ of the virial pressure) where the
+    /// Groot–Warren EOS ([`params::sound_speed`]) is not known to hold.
     pub sound_speed: f64,
-    /// Time step (model time units).
+    /// Time step (model time units): the largest of a scan that keeps the kinetic kBT of a box
+    /// at rest near the thermostat's.
     pub timestep: f64,
+    /// Kinetic kBT of a box at rest at [`timestep`](Self::timestep), relative to the
+    /// thermostat's (its measured error).
+    pub kbt_at_timestep: f64,
+    /// Slip length at a bounce-back wall of the fluid's own frozen particles, rc (the tube's
+    /// wall is placed so that the effective no-slip radius is the physical one).
+    pub wall_slip: f64,
+    /// Measured throughput of the engine on this fluid, particle-steps per second on 2 threads
+    /// of the reference machine (docs/performance.md): the chooser's cost per particle-step.
+    pub particle_steps_per_s: f64,
+    /// The tests that re-measure the numbers above.
+    pub measured_by: &'static str,
 }
 
 impl FluidModel {
     /// The capillary fluid ([`PairParams::capillary`]: a = 25, γ = 120, s = 1/4, ρ = 3,
-    /// Δt = 0.0025, η measured (26.6), c ≈ 4.02).
+    /// Δt = 0.0025, η measured (26.6), c ≈ 4.02 from the EOS).
     pub fn capillary() -> Self {
         let pair = PairParams::capillary();
         Self {
+            name: "capillary",
             pair,
             density: CAPILLARY_FLUID_DENSITY,
             mass: 1.0,
@@ -118,13 +143,38 @@ impl FluidModel {
             viscosity_se: CAPILLARY_FLUID_VISCOSITY_SE,
             sound_speed: params::sound_speed(&pair, CAPILLARY_FLUID_DENSITY, 1.0),
             timestep: CAPILLARY_FLUID_TIMESTEP,
+            kbt_at_timestep: 1.0007,
+            wall_slip: CAPILLARY_FLUID_WALL_SLIP,
+            particle_steps_per_s: 1.3e7,
+            measured_by: "viscosity_capillary_long (crates/engine/tests/viscosity.rs), capillary_fluid_timestep_scan (crates/engine/tests/capillary_fluid.rs), capillary_fluid_wall_slip (tests/capillary.rs)",
+        }
+    }
+
+    /// The dense fluid ([`PairParams::dense`]: n = 10, a = 100, γ = 41, s = 1/8, Δt = 0.003,
+    /// η and c measured): ≈ 30× the capillary fluid's η·c, for κ/kBT exact at capillary speeds.
+    pub fn dense() -> Self {
+        Self {
+            name: "dense",
+            pair: PairParams::dense(),
+            density: DENSE_FLUID_DENSITY,
+            mass: 1.0,
+            viscosity: DENSE_FLUID_VISCOSITY,
+            viscosity_se: DENSE_FLUID_VISCOSITY_SE,
+            sound_speed: DENSE_FLUID_SOUND_SPEED,
+            timestep: DENSE_FLUID_TIMESTEP,
+            kbt_at_timestep: DENSE_FLUID_KBT_AT_TIMESTEP,
+            wall_slip: DENSE_FLUID_WALL_SLIP,
+            particle_steps_per_s: 3.0e6,
+            measured_by: "viscosity_dense_long (crates/engine/tests/viscosity.rs), dense_fluid_timestep_scan and dense_fluid_sound_speed (crates/engine/tests/dense_fluid.rs), dense_fluid_wall_slip (tests/capillary.rs)",
         }
     }
 
     /// The Groot–Warren standard fluid (a = 25, γ = 4.5, s = 1, ρ = 3, Δt = 0.01, η = 0.842).
+    /// Not in the [`table`](Self::table): its η·c is too small for a cell in flow.
     pub fn standard() -> Self {
         let pair = PairParams::groot_warren();
         Self {
+            name: "standard",
             pair,
             density: 3.0,
             mass: 1.0,
@@ -132,12 +182,46 @@ impl FluidModel {
             viscosity_se: STANDARD_FLUID_VISCOSITY_SE,
             sound_speed: params::sound_speed(&pair, 3.0, 1.0),
             timestep: 0.01,
+            kbt_at_timestep: 1.0,
+            wall_slip: 0.0,
+            particle_steps_per_s: 1.8e7,
+            measured_by: "viscosity tests in crates/engine/tests/viscosity.rs",
         }
+    }
+
+    /// The fluids a cell-in-flow scenario can run with, by `model.fluid` name: the capillary
+    /// fluid (cheap, hot: κ/kBT exact only at slow flow) and the dense fluid (≈ 30× its η·c).
+    pub fn table() -> Vec<FluidModel> {
+        vec![Self::capillary(), Self::dense()]
+    }
+
+    /// The fluid of the table named `name`.
+    pub fn by_name(name: &str) -> Option<FluidModel> {
+        Self::table().into_iter().find(|f| f.name == name)
+    }
+
+    /// Names of the table's fluids, for error messages.
+    pub fn names() -> Vec<&'static str> {
+        Self::table().iter().map(|f| f.name).collect()
     }
 
     /// Mass density n·m (model units).
     pub fn mass_density(&self) -> f64 {
         self.density * self.mass
+    }
+
+    /// The default time step of a cell in this fluid: the fluid's own step, shortened so that
+    /// no pair's friction exceeds the γ it was validated with. The explicit friction's limit is
+    /// on γΔt (per unit mass); the inner fluid has γ × λ, and the membrane vertices (mass 1)
+    /// feel γ_fsi ([`fsi_friction`], × λ inside) from the fluid on each side, which grows as
+    /// the vertices thin out (fewer vertices per rc²: small N or a fine resolution). So
+    /// Δt = Δt_fluid · γ / (max(1, λ) · max(γ, γ_fsi)), with γ_fsi for the N-vertex cell of
+    /// area A at `length_m` metres per rc.
+    pub fn default_timestep(&self, sys: &PhysicalSystem, length_m: f64) -> f64 {
+        let vertex_density = sys.vertices as f64 / (sys.cell_area_m2 / (length_m * length_m));
+        let gamma_fsi = fsi_friction(self.viscosity, self.density, vertex_density, self.pair.s, self.pair.rc);
+        let gamma_max = sys.viscosity_ratio.max(1.0) * self.pair.gamma.max(gamma_fsi);
+        self.timestep * self.pair.gamma / gamma_max
     }
 
     fn validate(&self) -> Result<(), UnitsError> {
@@ -177,6 +261,8 @@ pub struct PhysicalSystem {
     pub cell_volume_m3: f64,
     /// Membrane shear modulus μ0, N/m.
     pub shear_modulus_n_per_m: f64,
+    /// Vertices N of the membrane mesh (their areal density sets the membrane–fluid friction).
+    pub vertices: usize,
     /// Bending constant κ (k_bend), J.
     pub bending_j: f64,
     /// 2D membrane viscosity η_m, N·s/m = Pa·s·m (0: none, the paper's model; ≈ 5e-7–1e-6
@@ -226,6 +312,7 @@ impl PhysicalSystem {
             cell_area_m2: area_um2 * 1e-12,
             cell_volume_m3: volume_um3 * 1e-18,
             shear_modulus_n_per_m: membrane.shear_modulus_n_per_m,
+            vertices: membrane.n,
             bending_j: membrane.k_bend_j,
             membrane_viscosity_n_s_per_m: 0.0,
         }
@@ -637,6 +724,255 @@ pub fn groups_model(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -
     )
 }
 
+/// Which fluid a scenario runs with (`model.fluid`).
+#[derive(Debug, Clone, PartialEq)]
+pub enum FluidChoice {
+    /// A fluid of [`FluidModel::table`] by name.
+    Named(String),
+    /// The fluid of the table that meets the thermal choice and the bounds at the least cost
+    /// ([`choose_fluid`]).
+    Auto,
+}
+
+/// How one fluid of the table fared in [`choose_fluid`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Candidate {
+    /// The fluid's name.
+    pub name: &'static str,
+    /// Its thermal factor, Mach and Reynolds numbers and cost, or why it was ruled out.
+    pub outcome: Result<CandidateFit, String>,
+}
+
+/// A fluid that meets the bounds: what it gives and what it costs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct CandidateFit {
+    /// f = E/(kB T).
+    pub thermal_factor: f64,
+    /// Mach number at the characteristic velocity.
+    pub mach: f64,
+    /// Reynolds number ρUL/η.
+    pub reynolds: f64,
+    /// Time step, model units ([`FluidModel::default_timestep`]).
+    pub timestep: f64,
+    /// Estimated CPU time on 2 threads of the reference machine for one physical millisecond
+    /// of 1000 µm³ of this fluid, s: particles n·V/r³ times steps 1 ms/(τΔt) over the fluid's
+    /// measured throughput.
+    pub cost_s_per_ms_per_1000_um3: f64,
+}
+
+/// The fluid a scenario runs with, its unit mapping and why it was chosen.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FluidDecision {
+    pub fluid: FluidModel,
+    pub map: UnitMapping,
+    /// Every fluid considered (one for a named fluid).
+    pub candidates: Vec<Candidate>,
+    /// One sentence: why this fluid.
+    pub reason: String,
+}
+
+/// Estimated CPU seconds (2 threads) per physical ms of 1000 µm³ of `fluid` under `map` at the
+/// model time step `dt` ([`CandidateFit::cost_s_per_ms_per_1000_um3`]).
+pub fn fluid_cost(fluid: &FluidModel, map: &UnitMapping, dt: f64) -> f64 {
+    let particles = fluid.density * 1e-15 / map.length_m.powi(3);
+    let steps = 1e-3 / (map.time_s * dt);
+    particles * steps / fluid.particle_steps_per_s
+}
+
+/// Chooses the fluid and the unit mapping of `sys` at `length_m_per_rc`.
+///
+/// A named fluid gets [`UnitMapping::choose`] as it is. "auto" tries every fluid of
+/// [`FluidModel::table`] under `thermal` and keeps those whose mapping exists with Mach ≤
+/// `max_mach` (for every thermal choice, not only "auto") and Reynolds ≤ `max_reynolds`; of
+/// those, under [`ThermalChoice::Auto`] the one with the least thermal factor (the most
+/// faithful membrane temperature; ties within 1 % go to the cheaper), otherwise the cheapest
+/// ([`fluid_cost`]). Errors: an unknown name (key `fluid`), `max_reynolds` outside (0,
+/// [`REYNOLDS_LIMIT`]], no fluid meeting the bounds (every fluid's reason in the message), and
+/// the errors of [`UnitMapping::choose`].
+pub fn choose_fluid(
+    sys: &PhysicalSystem,
+    length_m_per_rc: f64,
+    thermal: ThermalChoice,
+    choice: &FluidChoice,
+    max_mach: f64,
+    max_reynolds: f64,
+) -> Result<FluidDecision, UnitsError> {
+    let fit = |fluid: &FluidModel, map: &UnitMapping| {
+        let g = groups_model(sys, map, fluid);
+        let dt = fluid.default_timestep(sys, map.length_m);
+        CandidateFit {
+            thermal_factor: map.thermal_factor,
+            mach: g.mach,
+            reynolds: g.reynolds,
+            timestep: dt,
+            cost_s_per_ms_per_1000_um3: fluid_cost(fluid, map, dt),
+        }
+    };
+    match choice {
+        FluidChoice::Named(name) => {
+            let fluid = FluidModel::by_name(name).ok_or_else(|| UnitsError::UnknownFluid {
+                name: name.clone(),
+                allowed: FluidModel::names().join(", "),
+            })?;
+            let map = UnitMapping::choose(sys, &fluid, length_m_per_rc, thermal)?;
+            let c = fit(&fluid, &map);
+            Ok(FluidDecision {
+                candidates: vec![Candidate {
+                    name: fluid.name,
+                    outcome: Ok(c),
+                }],
+                reason: format!("named by model.fluid = \"{}\"", fluid.name),
+                fluid,
+                map,
+            })
+        }
+        FluidChoice::Auto => {
+            if !(max_reynolds.is_finite() && max_reynolds > 0.0 && max_reynolds <= REYNOLDS_LIMIT) {
+                return Err(UnitsError::OutOfRange {
+                    key: "max_reynolds",
+                    value: max_reynolds,
+                    allowed: format!("must be in (0, {REYNOLDS_LIMIT}]"),
+                });
+            }
+            let mut candidates = Vec::new();
+            let mut feasible: Vec<(FluidModel, UnitMapping, CandidateFit)> = Vec::new();
+            for fluid in FluidModel::table() {
+                let outcome = match UnitMapping::choose(sys, &fluid, length_m_per_rc, thermal) {
+                    Err(e) => Err(e.to_string()),
+                    Ok(map) => {
+                        let c = fit(&fluid, &map);
+                        if c.mach > max_mach * (1.0 + 1e-12) {
+                            Err(format!("Mach {:.3} at f = {:.3} exceeds max_mach = {max_mach}", c.mach, c.thermal_factor))
+                        } else if c.reynolds > max_reynolds {
+                            Err(format!(
+                                "Reynolds {:.3} at f = {:.3} exceeds max_reynolds = {max_reynolds}",
+                                c.reynolds, c.thermal_factor
+                            ))
+                        } else {
+                            feasible.push((fluid.clone(), map, c));
+                            Ok(c)
+                        }
+                    }
+                };
+                candidates.push(Candidate {
+                    name: fluid.name,
+                    outcome,
+                });
+            }
+            let by_thermal = matches!(thermal, ThermalChoice::Auto { .. });
+            let best = feasible
+                .iter()
+                .min_by(|(_, _, a), (_, _, b)| {
+                    let f_differs = (a.thermal_factor / b.thermal_factor - 1.0).abs() > 0.01;
+                    if by_thermal && f_differs {
+                        a.thermal_factor.total_cmp(&b.thermal_factor)
+                    } else {
+                        a.cost_s_per_ms_per_1000_um3.total_cmp(&b.cost_s_per_ms_per_1000_um3)
+                    }
+                })
+                .cloned();
+            let Some((fluid, map, c)) = best else {
+                let why: Vec<String> = candidates
+                    .iter()
+                    .map(|c| format!("{}: {}", c.name, c.outcome.as_ref().err().cloned().unwrap_or_default()))
+                    .collect();
+                return Err(UnitsError::NoFluid { reasons: why.join("; ") });
+            };
+            let reason = if feasible.len() == 1 {
+                format!("the only fluid of the table that meets the bounds (Mach ≤ {max_mach}, Re ≤ {max_reynolds})")
+            } else if by_thermal {
+                format!(
+                    "of the {} fluids that meet the bounds (Mach ≤ {max_mach}, Re ≤ {max_reynolds}), the one with the least thermal factor (f = {:.3}), then the least cost",
+                    feasible.len(),
+                    c.thermal_factor
+                )
+            } else {
+                format!(
+                    "of the {} fluids that meet the bounds (Mach ≤ {max_mach}, Re ≤ {max_reynolds}) at f = {:.3}, the cheapest",
+                    feasible.len(),
+                    c.thermal_factor
+                )
+            };
+            Ok(FluidDecision {
+                fluid,
+                map,
+                candidates,
+                reason,
+            })
+        }
+    }
+}
+
+/// The fluid of a run for summary.json: its name, pair parameters, density and measured
+/// properties (model units), and the run's time step.
+pub fn fluid_json(f: &FluidModel, timestep: f64) -> serde_json::Value {
+    serde_json::json!({
+        "name": f.name, "density": f.density, "a": f.pair.a, "gamma": f.pair.gamma,
+        "weight_exponent": f.pair.s, "kbt": f.pair.kbt, "viscosity": f.viscosity,
+        "viscosity_se": f.viscosity_se, "sound_speed": f.sound_speed, "wall_slip": f.wall_slip,
+        "fluid_timestep": f.timestep, "timestep": timestep,
+    })
+}
+
+/// The `--explain-units` block on the fluid: the chosen fluid's parameters and measured
+/// properties, every candidate with its outcome, and why.
+pub fn explain_fluid(d: &FluidDecision) -> String {
+    let f = &d.fluid;
+    let p = f.pair;
+    let mut s = String::new();
+    let _ = writeln!(s, "Fluid: \"{}\" ({})", f.name, d.reason);
+    let _ = writeln!(
+        s,
+        "    pair: n = {}, a = {}, γ = {}, kBT = {}, rc = {}, weight exponent s = {} (w^D exponent {}), particle mass {}",
+        f.density,
+        p.a,
+        p.gamma,
+        p.kbt,
+        p.rc,
+        p.s,
+        2.0 * p.s,
+        f.mass
+    );
+    let _ = writeln!(
+        s,
+        "    measured: η = {} ± {} (kinetic theory {:.3}), sound speed c = {:.3}, Δt = {} (kBT at rest {:.4}), wall slip {} rc, {:.2e} particle-steps/s on 2 threads",
+        f.viscosity,
+        f.viscosity_se,
+        params::kinetic_theory_viscosity(&p, f.density, f.mass),
+        f.sound_speed,
+        f.timestep,
+        f.kbt_at_timestep,
+        f.wall_slip,
+        f.particle_steps_per_s
+    );
+    let _ = writeln!(s, "    re-measured by: {}", f.measured_by);
+    let _ = writeln!(
+        s,
+        "    candidates (f, Mach, Re, Δt, CPU s per physical ms of 1000 µm³ on 2 threads):"
+    );
+    for c in &d.candidates {
+        match &c.outcome {
+            Ok(x) => {
+                let _ = writeln!(
+                    s,
+                    "      {:<10} f = {:.3}, Ma = {:.3}, Re = {:.3}, Δt = {:.4}, cost {:.3} s{}",
+                    c.name,
+                    x.thermal_factor,
+                    x.mach,
+                    x.reynolds,
+                    x.timestep,
+                    x.cost_s_per_ms_per_1000_um3,
+                    if c.name == f.name { "  ← chosen" } else { "" }
+                );
+            }
+            Err(e) => {
+                let _ = writeln!(s, "      {:<10} ruled out: {e}", c.name);
+            }
+        }
+    }
+    s
+}
+
 /// Every scale and every group in SI and model units side by side, the time step in seconds,
 /// and what Re, Mach and f mean for the run.
 pub fn explain(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> String {
@@ -694,10 +1030,10 @@ pub fn explain(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> Str
         &mut s,
         "time step",
         format!(
-            "Δt = {} model = {:.4e} s ({:.0} steps per ms)",
-            fluid.timestep,
-            fluid.timestep * m.time_s,
-            1e-3 / (fluid.timestep * m.time_s)
+            "Δt = {} model = {:.4e} s ({:.0} steps per ms; the default, model.timestep overrides it)",
+            fluid.default_timestep(sys, m.length_m),
+            fluid.default_timestep(sys, m.length_m) * m.time_s,
+            1e-3 / (fluid.default_timestep(sys, m.length_m) * m.time_s)
         ),
     );
     let _ = writeln!(s, "  values:                      SI                      model");
@@ -934,16 +1270,19 @@ mod tests {
     /// ratios of the model fluid's density and sound speed (in SI) to plasma's.
     #[test]
     fn units_groups_agree_in_si_and_model() {
-        for fluid in [FluidModel::capillary(), FluidModel::standard()] {
+        let mut fluids = FluidModel::table();
+        fluids.push(FluidModel::standard());
+        for fluid in fluids {
             for sys in systems() {
                 for choice in [ThermalChoice::default(), ThermalChoice::Factor(400.0)] {
                     let m = match UnitMapping::choose(&sys, &fluid, 1e-6, choice) {
                         Ok(m) => m,
                         // the thin standard fluid has Re = 143 Ma in a 10 rc tube: refused
-                        // (Re > 5, or Mach > 0.25 at f = 400) in every case here; the
-                        // capillary fluid never is
+                        // (Re > 5, or Mach > 0.25 at f = 400) in every case here; the dense
+                        // fluid at f = 1 and 5 mm/s exceeds Re = 5; the capillary fluid is
+                        // never refused
                         Err(e) => {
-                            assert_eq!(fluid, FluidModel::standard(), "{e}");
+                            assert_ne!(fluid.name, "capillary", "{e}");
                             assert_eq!(e.key(), "velocity_m_s", "{e}");
                             continue;
                         }
@@ -975,9 +1314,12 @@ mod tests {
                         b.mach <= MACH_LIMIT * (1.0 + 1e-12) && b.reynolds <= REYNOLDS_LIMIT,
                         "{ctx}"
                     );
-                    // physical Re ≈ 0.01 and Mach ≈ 1e-6: the model's are far larger
-                    assert!(a.reynolds < 0.1 && b.reynolds > a.reynolds, "{ctx}");
-                    assert!(a.mach < 1e-5 && b.mach > 100.0 * a.mach, "{ctx}");
+                    // physical Re ≈ 0.01 and Mach ≈ 1e-6: the model's are far larger at the
+                    // least f (at f = 400 the dense fluid's Re can fall below the physical one)
+                    assert!(a.reynolds < 0.1 && a.mach < 1e-5, "{ctx}");
+                    if choice == ThermalChoice::default() {
+                        assert!(b.reynolds > a.reynolds && b.mach > 100.0 * a.mach, "{ctx}");
+                    }
                 }
             }
         }
@@ -985,6 +1327,102 @@ mod tests {
 
     /// Auto raises f until Mach = max_mach exactly when f = 1 would exceed it, and keeps f = 1
     /// (the Exact mapping) when that fits.
+    /// The fluid chooser at the worked default (10 µm, 1 mm/s, 1 µm per rc): under thermal
+    /// "auto" it takes the dense fluid at f = 1 (the capillary fluid needs f ≈ 10.8); at a
+    /// given f both fluids meet the bounds and the cheaper (capillary) wins; "exact" rules the
+    /// capillary fluid out by its Mach number. The chosen mapping's groups equal the SI ones
+    /// (κ/kBT to the factor f), and a named fluid is taken as named.
+    #[test]
+    fn units_fluid_chooser() {
+        let sys = PhysicalSystem::capillary_default();
+        let auto = |thermal| choose_fluid(&sys, 1e-6, thermal, &FluidChoice::Auto, MACH_LIMIT, REYNOLDS_WARN).unwrap();
+        let d = auto(ThermalChoice::default());
+        assert_eq!(d.fluid.name, "dense", "{}", explain_fluid(&d));
+        assert_eq!(d.map.thermal_factor, 1.0);
+        let (a, b) = (groups_si(&sys), groups_model(&sys, &d.map, &d.fluid));
+        assert!(rel(b.kappa_over_kbt, a.kappa_over_kbt) < 1e-12);
+        assert!(rel(b.capillary_number, a.capillary_number) < 1e-12);
+        assert!(b.mach < 0.15 && b.reynolds < REYNOLDS_WARN, "{b:?}");
+        // the capillary fluid at its f ≈ 10.8 runs at Re 1.13: over the default bound of 1
+        let cap = d.candidates.iter().find(|c| c.name == "capillary").unwrap();
+        assert!(cap.outcome.as_ref().unwrap_err().contains("Reynolds 1.13"), "{cap:?}");
+        let auto = |thermal| choose_fluid(&sys, 1e-6, thermal, &FluidChoice::Auto, MACH_LIMIT, 2.0).unwrap();
+        let d = auto(ThermalChoice::default());
+        assert_eq!(d.fluid.name, "dense", "{}", explain_fluid(&d));
+        let cap = d.candidates.iter().find(|c| c.name == "capillary").unwrap();
+        let cf = cap.outcome.as_ref().unwrap();
+        assert!((cf.thermal_factor - 10.84).abs() < 0.05, "{cf:?}");
+        // a given f (Re ≤ 2): both meet the bounds; the capillary fluid is cheaper
+        let d = auto(ThermalChoice::Factor(11.0));
+        assert_eq!(d.fluid.name, "capillary", "{}", explain_fluid(&d));
+        assert!(d.candidates.iter().all(|c| c.outcome.is_ok()));
+        let costs: Vec<f64> = d
+            .candidates
+            .iter()
+            .map(|c| c.outcome.as_ref().unwrap().cost_s_per_ms_per_1000_um3)
+            .collect();
+        assert!(costs[0] < costs[1], "{costs:?}");
+        // exact: the capillary fluid would run at Mach ≈ 2.7
+        let d = auto(ThermalChoice::Exact);
+        assert_eq!(d.fluid.name, "dense");
+        let cap = d.candidates.iter().find(|c| c.name == "capillary").unwrap();
+        assert!(cap.outcome.as_ref().unwrap_err().contains("Mach"), "{cap:?}");
+        // a named fluid, as named, with the same mapping as UnitMapping::choose
+        let named = choose_fluid(
+            &sys,
+            1e-6,
+            ThermalChoice::default(),
+            &FluidChoice::Named("capillary".into()),
+            MACH_LIMIT,
+            REYNOLDS_WARN,
+        )
+        .unwrap();
+        let direct = UnitMapping::choose(&sys, &FluidModel::capillary(), 1e-6, ThermalChoice::default()).unwrap();
+        assert_eq!(named.map, direct);
+        assert_eq!(named.fluid, FluidModel::capillary());
+        // the inner fluid five times more viscous shortens the step five-fold, and the
+        // membrane's friction with the dense fluid (γ_fsi ≈ 50 > γ = 41) shortens it further
+        let mut visc = sys.clone();
+        visc.viscosity_ratio = 5.0;
+        let d = choose_fluid(&visc, 1e-6, ThermalChoice::Exact, &FluidChoice::Auto, MACH_LIMIT, REYNOLDS_WARN).unwrap();
+        let c = d.candidates.iter().find(|c| c.name == "dense").unwrap().outcome.clone().unwrap();
+        let dense = FluidModel::dense();
+        let n_m = 500.0 / (visc.cell_area_m2 / 1e-12);
+        let g_fsi = fsi_friction(dense.viscosity, dense.density, n_m, dense.pair.s, 1.0);
+        assert!(g_fsi > dense.pair.gamma, "{g_fsi}");
+        assert!(rel(c.timestep, dense.timestep * dense.pair.gamma / (5.0 * g_fsi)) < 1e-12);
+        // the capillary fluid's γ = 120 exceeds its γ_fsi ≈ 30: its step is its own (λ = 1)
+        let cap = FluidModel::capillary();
+        assert_eq!(cap.default_timestep(&sys, 1e-6), cap.timestep);
+    }
+
+    /// Bounds no fluid meets, an unknown name and a Reynolds bound out of range fail with the
+    /// key `fluid` or `max_reynolds`, each fluid's reason in the message.
+    #[test]
+    fn units_fluid_chooser_bad_input() {
+        let mut sys = PhysicalSystem::capillary_default();
+        sys.velocity_m_s = 0.05;
+        let e = choose_fluid(&sys, 1e-6, ThermalChoice::Exact, &FluidChoice::Auto, MACH_LIMIT, REYNOLDS_WARN).unwrap_err();
+        assert_eq!(e.key(), "fluid");
+        let m = e.to_string();
+        assert!(m.contains("capillary:") && m.contains("dense:") && m.contains("allowed"), "{m}");
+        let e = choose_fluid(
+            &sys,
+            1e-6,
+            ThermalChoice::Exact,
+            &FluidChoice::Named("water".into()),
+            MACH_LIMIT,
+            REYNOLDS_WARN,
+        )
+        .unwrap_err();
+        assert_eq!(e.key(), "fluid");
+        assert!(e.to_string().contains("capillary, dense"), "{e}");
+        for bad in [0.0, 6.0, f64::NAN] {
+            let e = choose_fluid(&sys, 1e-6, ThermalChoice::Exact, &FluidChoice::Auto, MACH_LIMIT, bad).unwrap_err();
+            assert_eq!(e.key(), "max_reynolds");
+        }
+    }
+
     #[test]
     fn units_auto_thermal_factor() {
         let fluid = FluidModel::capillary();

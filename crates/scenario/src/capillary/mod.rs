@@ -19,16 +19,15 @@ use crate::cell::build::{
     cell_membrane_viscosity, cell_mesh_um, check_membrane_timestep, membrane_model, place_cell, CellPlan,
 };
 use crate::cell::checkpoint::{open_cell_trajectory, restore_cell_run, save_cell_run, CheckpointHead, Restored};
-use crate::cell::section::{cell_params, resolve_substeps, thermal_choice, validate_cell, validate_model, ModelKeys};
+use crate::cell::section::{cell_mapping, cell_params, resolve_substeps, validate_cell, validate_model, ModelKeys};
 use crate::cell::summary::{crossings_json, membrane_viscosity_summary, step_shares};
 use crate::cell::{CellSection, CellSim, VERTEX_MASS};
 use crate::context::{RunContext, RunError};
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
 use crate::run_dir::{engine_err, out_err, TRAJECTORY_FILE};
-use crate::units::{self, um_to_m, FluidModel, PhysicalSystem, ThermalChoice, UnitMapping, MMHG_PER_MM_IN_PA_PER_M};
+use crate::units::{self, um_to_m, FluidDecision, FluidModel, PhysicalSystem, UnitMapping, MMHG_PER_MM_IN_PA_PER_M};
 use glam::DVec3;
-use hemodpd_engine::params::CAPILLARY_FLUID_WALL_SLIP;
 use hemodpd_engine::walls::{self, WallSetup, WallShape};
 use hemodpd_engine::SimConfig;
 use hemodpd_io::checkpoint::Checkpoint;
@@ -267,27 +266,21 @@ impl CapillaryScenario {
         Ok(sys)
     }
 
-    fn thermal(&self) -> ThermalChoice {
-        thermal_choice(&self.model.thermal_factor, self.model.max_mach)
-    }
-
-    /// The unit mapping (errors name the scenario key).
-    pub fn mapping(&self) -> Result<(PhysicalSystem, UnitMapping), RunError> {
+    /// The fluid and the unit mapping (errors name the scenario key).
+    pub fn mapping(&self) -> Result<(PhysicalSystem, FluidDecision), RunError> {
         let sys = self.physical()?;
-        let m = UnitMapping::choose(
-            &sys,
-            &FluidModel::capillary(),
-            um_to_m(self.model.length_um_per_rc),
-            self.thermal(),
-        )
-        .map_err(|e| RunError::Output(format!("unit mapping: {e}")))?;
-        Ok((sys, m))
+        let d = cell_mapping(&sys, self.model.shared())?;
+        Ok((sys, d))
     }
 
     /// The `--explain-units` text.
     pub fn explain_units(&self) -> Result<String, RunError> {
-        let (sys, m) = self.mapping()?;
-        Ok(units::explain(&sys, &m, &FluidModel::capillary()))
+        let (sys, d) = self.mapping()?;
+        Ok(format!(
+            "{}{}",
+            units::explain(&sys, &d.map, &d.fluid),
+            units::explain_fluid(&d)
+        ))
     }
 }
 
@@ -310,7 +303,7 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
     validate_cell(&s.cell, file)?;
     validate_model(
         s.model.shared(),
-        "1e-4–0.004 model units (default 0.0025): the capillary fluid keeps its temperature up to 0.004 and runs 9 % hot at 0.005 (docs/units.md)",
+        "1e-4–0.004 model units (default: the fluid's, 0.0025 for \"capillary\", 0.003 for \"dense\", divided by a viscosity ratio above 1; docs/units.md)",
         file,
     )?;
     if s.model.flow_control_every_steps == 0 {
@@ -379,7 +372,11 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
     }
     // the cell must fit: its diameter plus two repulsion ranges inside the tube
     let d0 = 2.0 * EvansFung::healthy_um().r;
-    let margin = 2.0 * (s.model.wall_repulsion_range_rc + CAPILLARY_FLUID_WALL_SLIP) * s.model.length_um_per_rc;
+    let slip = FluidModel::by_name(&s.model.fluid).map_or_else(
+        || FluidModel::table().iter().map(|f| f.wall_slip).fold(0.0, f64::max),
+        |f| f.wall_slip,
+    );
+    let margin = 2.0 * (s.model.wall_repulsion_range_rc + slip) * s.model.length_um_per_rc;
     if d0 + margin >= s.tube.diameter_um {
         return Err(fail(
             "tube.diameter_um",
@@ -442,13 +439,12 @@ pub struct Plan<'a> {
 
 impl<'a> Plan<'a> {
     pub fn new(s: &'a CapillaryScenario) -> Result<Self, RunError> {
-        let (sys, map) = s.mapping()?;
-        let fluid = FluidModel::capillary();
-        let dt = s.model.timestep.unwrap_or(fluid.timestep);
+        let (sys, FluidDecision { fluid, map, .. }) = s.mapping()?;
+        let dt = s.model.timestep.unwrap_or(fluid.default_timestep(&sys, map.length_m));
         let radius = map.length_to_model(0.5 * s.tube.diameter_m());
         let length = map.length_to_model(s.tube.length_m());
         let rc = fluid.pair.rc;
-        let wall_r = wall_radius(radius, CAPILLARY_FLUID_WALL_SLIP);
+        let wall_r = wall_radius(radius, fluid.wall_slip);
         // wall thickness rc plus half an rc of margin on each side
         let side = 2.0 * (wall_r + 1.5 * rc);
         let box_lengths = DVec3::new(side, side, length);
@@ -1201,6 +1197,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             "thermal_factor": m.thermal_factor, "warnings": m.warnings,
             "timestep_s": plan.dt * t,
         },
+        "fluid": units::fluid_json(&plan.fluid, plan.dt),
         "groups_si": units::groups_si(&plan.sys),
         "groups_model": units::groups_model(&plan.sys, m, &plan.fluid),
         "model": {

@@ -34,6 +34,12 @@ pub(crate) fn d_thermal() -> ThermalSetting {
 pub(crate) fn d_mach() -> f64 {
     units::MACH_LIMIT
 }
+pub(crate) fn d_fluid() -> String {
+    "capillary".into()
+}
+pub(crate) fn d_reynolds() -> f64 {
+    units::REYNOLDS_WARN
+}
 pub(crate) fn d_check() -> u64 {
     500
 }
@@ -132,8 +138,12 @@ pub struct ModelKeys<'a> {
     /// µm per rc.
     pub length_um_per_rc: f64,
     pub thermal_factor: &'a ThermalSetting,
-    /// Mach bound of "auto".
+    /// Mach bound of "auto" (and of the fluid chooser).
     pub max_mach: f64,
+    /// The fluid: a name of [`units::FluidModel::table`] or "auto".
+    pub fluid: &'a str,
+    /// Reynolds bound of the fluid chooser.
+    pub max_reynolds: f64,
     /// Model time step (None: the fluid's).
     pub timestep: Option<f64>,
     /// Steps between inside/outside checks of the fluid (0: never).
@@ -163,9 +173,19 @@ macro_rules! model_section {
             /// in a capillary, γ̇ D0/2 in shear), "exact" (f = 1) or a number f ≥ 1.
             #[serde(default = "crate::cell::section::d_thermal")]
             pub thermal_factor: $crate::cell::ThermalSetting,
-            /// Mach bound for "auto" (default 0.25, the largest allowed).
+            /// Mach bound for "auto" (default 0.25, the largest allowed); with `fluid = "auto"`
+            /// also the bound every candidate fluid must meet.
             #[serde(default = "crate::cell::section::d_mach")]
             pub max_mach: f64,
+            /// The DPD fluid: "capillary" (default: n = 3, a = 25, γ = 120, s = 1/4), "dense"
+            /// (n = 10, a = 100, γ = 41, s = 1/8) or "auto": the fluid of the table that meets
+            /// `thermal_factor`, `max_mach` and `max_reynolds` at the least cost (docs/units.md,
+            /// "Choosing the fluid").
+            #[serde(default = "crate::cell::section::d_fluid")]
+            pub fluid: String,
+            /// Reynolds bound of `fluid = "auto"` (default 1; at most 5).
+            #[serde(default = "crate::cell::section::d_reynolds")]
+            pub max_reynolds: f64,
             /// Model time step (default: the capillary fluid's, 0.0025).
             #[serde(default, skip_serializing_if = "Option::is_none")]
             pub timestep: Option<f64>,
@@ -198,6 +218,8 @@ macro_rules! model_section {
                     length_um_per_rc: self.length_um_per_rc,
                     thermal_factor: &self.thermal_factor,
                     max_mach: self.max_mach,
+                    fluid: &self.fluid,
+                    max_reynolds: self.max_reynolds,
                     timestep: self.timestep,
                     crossing_check_every_steps: self.crossing_check_every_steps,
                     wall_repulsion_range_rc: self.wall_repulsion_range_rc,
@@ -282,6 +304,7 @@ pub(crate) fn validate_model(m: ModelKeys, timestep_allowed: &str, file: &str) -
         "0.25–2 µm per rc",
     )?;
     validate_thermal(m.thermal_factor, m.max_mach, file)?;
+    validate_fluid(m.fluid, m.max_reynolds, file)?;
     if let Some(dt) = m.timestep {
         range("model.timestep", dt, 1e-4, 0.004, timestep_allowed)?;
     }
@@ -318,6 +341,52 @@ pub(crate) fn validate_thermal(setting: &ThermalSetting, max_mach: f64, file: &s
         });
     }
     Ok(())
+}
+
+/// Validates `model.fluid` (a name of the table or "auto") and `model.max_reynolds`.
+pub(crate) fn validate_fluid(fluid: &str, max_reynolds: f64, file: &str) -> Result<(), ScenarioError> {
+    if fluid != "auto" && units::FluidModel::by_name(fluid).is_none() {
+        return Err(ScenarioError::Value {
+            file: file.into(),
+            key: "model.fluid".into(),
+            value: format!("{fluid:?}"),
+            allowed: format!(
+                "\"auto\" or a fluid of the table: {}",
+                units::FluidModel::names()
+                    .iter()
+                    .map(|n| format!("{n:?}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
+        });
+    }
+    if !(max_reynolds.is_finite() && max_reynolds > 0.0 && max_reynolds <= units::REYNOLDS_LIMIT) {
+        return Err(ScenarioError::Value {
+            file: file.into(),
+            key: "model.max_reynolds".into(),
+            value: format!("{max_reynolds}"),
+            allowed: format!("(0, {}]", units::REYNOLDS_LIMIT),
+        });
+    }
+    Ok(())
+}
+
+/// The fluid and the unit mapping of a cell-in-flow run ([`units::choose_fluid`] with the
+/// shared `[model]` keys); errors read "unit mapping: …" with the key.
+pub(crate) fn cell_mapping(sys: &units::PhysicalSystem, m: ModelKeys) -> Result<units::FluidDecision, RunError> {
+    let choice = match m.fluid {
+        "auto" => units::FluidChoice::Auto,
+        name => units::FluidChoice::Named(name.to_string()),
+    };
+    units::choose_fluid(
+        sys,
+        crate::units::um_to_m(m.length_um_per_rc),
+        thermal_choice(m.thermal_factor, m.max_mach),
+        &choice,
+        m.max_mach,
+        m.max_reynolds,
+    )
+    .map_err(|e| RunError::Output(format!("unit mapping: {e}")))
 }
 
 /// Largest `model.membrane_substeps`.
