@@ -97,7 +97,8 @@ pub const DENSE_FLUID_VISCOSITY_SE: Real = 0.7;
 /// Groot–Warren EOS ([`sound_speed`]), fitted at a = 25, gives 14.25 (2 % low).
 pub const DENSE_FLUID_SOUND_SPEED: Real = 14.57;
 /// Slip length of the dense fluid at a wall of its own frozen particles with bounce-back, rc,
-/// measured like [`CAPILLARY_FLUID_WALL_SLIP`] (`dense_fluid_wall_slip` in tests/capillary.rs).
+/// measured like [`CAPILLARY_FLUID_WALL_SLIP`] (`dense_fluid_wall_slip` in tests/capillary.rs:
+/// 3 seeds × 20 000 sampled steps, the flux 22 % above no-slip, b = 0.277 ± 0.005).
 pub const DENSE_FLUID_WALL_SLIP: Real = 0.277;
 
 /// α of the Groot–Warren equation of state p = ρ kBT + α a ρ² (fitted for ρ ≥ 2, rc = 1).

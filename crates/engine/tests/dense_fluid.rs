@@ -69,7 +69,10 @@ fn dense_fluid_timestep_scan() {
     for dt in [0.002, 0.0025, 0.003, 0.0035, 0.004] {
         match try_measure(DENSE_FLUID_DENSITY, dt, 8.0, 1000, 4000, 3) {
             Ok(((t, se), (p, pse))) => {
-                eprintln!("SUMMARY dense fluid Δt = {dt} (γΔt = {:.3}): kBT = {t:.4} ± {se:.4}, p = {p:.2} ± {pse:.2}", 41.0 * dt);
+                eprintln!(
+                    "SUMMARY dense fluid Δt = {dt} (γΔt = {:.3}): kBT = {t:.4} ± {se:.4}, p = {p:.2} ± {pse:.2}",
+                    41.0 * dt
+                );
                 if dt == DENSE_FLUID_TIMESTEP {
                     at_chosen = Some(t);
                 }
@@ -83,7 +86,10 @@ fn dense_fluid_timestep_scan() {
     let t = at_chosen.expect("the chosen step is stable");
     assert!((t - 1.0).abs() < 0.005, "kBT = {t} at the chosen step");
     if let Some(t4) = at_004 {
-        assert!((t4 - 1.0).abs() > 0.01, "Δt = 0.004 is stable and accurate (kBT {t4}): the step could be raised");
+        assert!(
+            (t4 - 1.0).abs() > 0.01,
+            "Δt = 0.004 is stable and accurate (kBT {t4}): the step could be raised"
+        );
     }
 }
 
@@ -108,5 +114,8 @@ fn dense_fluid_sound_speed() {
     eprintln!(
         "SUMMARY dense fluid sound speed c = {c:.3} ± {c_se:.3} (c² = {c2:.1} ± {c2_se:.1}); Groot–Warren EOS {eos:.3}; constant {DENSE_FLUID_SOUND_SPEED}"
     );
-    assert!((c - DENSE_FLUID_SOUND_SPEED).abs() < 3.0 * c_se + 0.01, "c = {c} ± {c_se}");
+    assert!(
+        (c - DENSE_FLUID_SOUND_SPEED).abs() < 3.0 * c_se + 0.01,
+        "c = {c} ± {c_se}"
+    );
 }

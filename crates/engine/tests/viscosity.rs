@@ -5,7 +5,9 @@
 //! flipped in the second half); a least-squares fit of A = ρg/2η in each half gives η.
 
 use glam::DVec3;
-use hemodpd_engine::params::{DENSE_FLUID_DENSITY, DENSE_FLUID_TIMESTEP, DENSE_FLUID_VISCOSITY, DENSE_FLUID_VISCOSITY_SE};
+use hemodpd_engine::params::{
+    DENSE_FLUID_DENSITY, DENSE_FLUID_TIMESTEP, DENSE_FLUID_VISCOSITY, DENSE_FLUID_VISCOSITY_SE,
+};
 use hemodpd_engine::{init, observe, EngineError, Extension, ForceField, PairParams, SimConfig, Simulation, StateMut};
 
 struct ReversePoiseuille {
@@ -499,7 +501,10 @@ fn viscosity_dense_long() {
         "SUMMARY dense fluid: η = {a:.2} ± {sa:.2} (g = {DENSE_G}), {b:.2} ± {sb:.2} (g = {}); constant {DENSE_FLUID_VISCOSITY} ± {DENSE_FLUID_VISCOSITY_SE}; kinetic theory {kt:.2}",
         0.5 * DENSE_G
     );
-    assert!((a - b).abs() < 3.0 * (sa * sa + sb * sb).sqrt(), "g = {DENSE_G}: {a} ± {sa}, half: {b} ± {sb}");
+    assert!(
+        (a - b).abs() < 3.0 * (sa * sa + sb * sb).sqrt(),
+        "g = {DENSE_G}: {a} ± {sa}, half: {b} ± {sb}"
+    );
     assert!(
         (a - DENSE_FLUID_VISCOSITY).abs() < 3.0 * sa,
         "measured {a} ± {sa}, DENSE_FLUID_VISCOSITY = {DENSE_FLUID_VISCOSITY}"

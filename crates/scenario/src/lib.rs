@@ -14,6 +14,7 @@ pub mod driver;
 pub mod figures;
 pub mod file;
 pub mod fluid;
+pub mod fluid_choice;
 pub mod kind;
 pub mod mesh_cache;
 pub mod registry;

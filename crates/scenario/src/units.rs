@@ -20,11 +20,15 @@
 
 use std::fmt::Write as _;
 
+pub use crate::fluid_choice::{
+    choose_fluid, explain_fluid, fluid_cost, fluid_json, Candidate, CandidateFit, FluidChoice, FluidDecision,
+};
+
 use hemodpd_engine::params::{
     self, PairParams, CAPILLARY_FLUID_DENSITY, CAPILLARY_FLUID_TIMESTEP, CAPILLARY_FLUID_VISCOSITY,
     CAPILLARY_FLUID_VISCOSITY_SE, CAPILLARY_FLUID_WALL_SLIP, DENSE_FLUID_DENSITY, DENSE_FLUID_KBT_AT_TIMESTEP,
-    DENSE_FLUID_SOUND_SPEED, DENSE_FLUID_TIMESTEP, DENSE_FLUID_VISCOSITY,
-    DENSE_FLUID_VISCOSITY_SE, DENSE_FLUID_WALL_SLIP, STANDARD_FLUID_VISCOSITY, STANDARD_FLUID_VISCOSITY_SE,
+    DENSE_FLUID_SOUND_SPEED, DENSE_FLUID_TIMESTEP, DENSE_FLUID_VISCOSITY, DENSE_FLUID_VISCOSITY_SE,
+    DENSE_FLUID_WALL_SLIP, STANDARD_FLUID_VISCOSITY, STANDARD_FLUID_VISCOSITY_SE,
 };
 use hemodpd_membrane::params::{ModelParams, BOLTZMANN_J_PER_K};
 use hemodpd_membrane::shape::{reduced_volume, EvansFung};
@@ -119,6 +123,10 @@ pub struct FluidModel {
     /// Kinetic kBT of a box at rest at [`timestep`](Self::timestep), relative to the
     /// thermostat's (its measured error).
     pub kbt_at_timestep: f64,
+    /// The largest γΔt of the fluid's time-step scan that kept the kinetic kBT of a box at rest
+    /// within 0.5 % of the thermostat's: the bound [`default_timestep`](Self::default_timestep)
+    /// puts on every friction coefficient of a run.
+    pub friction_step_limit: f64,
     /// Slip length at a bounce-back wall of the fluid's own frozen particles, rc (the tube's
     /// wall is placed so that the effective no-slip radius is the physical one).
     pub wall_slip: f64,
@@ -144,6 +152,8 @@ impl FluidModel {
             sound_speed: params::sound_speed(&pair, CAPILLARY_FLUID_DENSITY, 1.0),
             timestep: CAPILLARY_FLUID_TIMESTEP,
             kbt_at_timestep: 1.0007,
+            // γ = 120 at Δt = 0.004: kBT 1.0022 (0.005: 1.092)
+            friction_step_limit: 0.48,
             wall_slip: CAPILLARY_FLUID_WALL_SLIP,
             particle_steps_per_s: 1.3e7,
             measured_by: "viscosity_capillary_long (crates/engine/tests/viscosity.rs), capillary_fluid_timestep_scan (crates/engine/tests/capillary_fluid.rs), capillary_fluid_wall_slip (tests/capillary.rs)",
@@ -163,6 +173,8 @@ impl FluidModel {
             sound_speed: DENSE_FLUID_SOUND_SPEED,
             timestep: DENSE_FLUID_TIMESTEP,
             kbt_at_timestep: DENSE_FLUID_KBT_AT_TIMESTEP,
+            // γ = 41 at Δt = 0.003: kBT 1.0011 (0.0035: 1.034)
+            friction_step_limit: 41.0 * DENSE_FLUID_TIMESTEP,
             wall_slip: DENSE_FLUID_WALL_SLIP,
             particle_steps_per_s: 3.0e6,
             measured_by: "viscosity_dense_long (crates/engine/tests/viscosity.rs), dense_fluid_timestep_scan and dense_fluid_sound_speed (crates/engine/tests/dense_fluid.rs), dense_fluid_wall_slip (tests/capillary.rs)",
@@ -183,6 +195,7 @@ impl FluidModel {
             sound_speed: params::sound_speed(&pair, 3.0, 1.0),
             timestep: 0.01,
             kbt_at_timestep: 1.0,
+            friction_step_limit: 0.045,
             wall_slip: 0.0,
             particle_steps_per_s: 1.8e7,
             measured_by: "viscosity tests in crates/engine/tests/viscosity.rs",
@@ -210,18 +223,18 @@ impl FluidModel {
         self.density * self.mass
     }
 
-    /// The default time step of a cell in this fluid: the fluid's own step, shortened so that
-    /// no pair's friction exceeds the γ it was validated with. The explicit friction's limit is
-    /// on γΔt (per unit mass); the inner fluid has γ × λ, and the membrane vertices (mass 1)
-    /// feel γ_fsi ([`fsi_friction`], × λ inside) from the fluid on each side, which grows as
-    /// the vertices thin out (fewer vertices per rc²: small N or a fine resolution). So
-    /// Δt = Δt_fluid · γ / (max(1, λ) · max(γ, γ_fsi)), with γ_fsi for the N-vertex cell of
-    /// area A at `length_m` metres per rc.
+    /// The default time step of a cell in this fluid: the fluid's own step, shortened where a
+    /// pair's friction would exceed the fluid's validated [`friction_step_limit`]
+    /// (Self::friction_step_limit) on γΔt (per unit mass). The inner fluid has γ × λ, and the
+    /// membrane vertices (mass 1) feel γ_fsi ([`fsi_friction`], × λ inside) from the fluid,
+    /// which grows as the vertices thin out (small N or a fine resolution). So
+    /// Δt = min(Δt_fluid, limit / (max(1, λ) · max(γ, γ_fsi))), with γ_fsi for the N-vertex
+    /// cell of area A at `length_m` metres per rc.
     pub fn default_timestep(&self, sys: &PhysicalSystem, length_m: f64) -> f64 {
         let vertex_density = sys.vertices as f64 / (sys.cell_area_m2 / (length_m * length_m));
         let gamma_fsi = fsi_friction(self.viscosity, self.density, vertex_density, self.pair.s, self.pair.rc);
         let gamma_max = sys.viscosity_ratio.max(1.0) * self.pair.gamma.max(gamma_fsi);
-        self.timestep * self.pair.gamma / gamma_max
+        self.timestep.min(self.friction_step_limit / gamma_max)
     }
 
     fn validate(&self) -> Result<(), UnitsError> {
@@ -724,255 +737,6 @@ pub fn groups_model(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -
     )
 }
 
-/// Which fluid a scenario runs with (`model.fluid`).
-#[derive(Debug, Clone, PartialEq)]
-pub enum FluidChoice {
-    /// A fluid of [`FluidModel::table`] by name.
-    Named(String),
-    /// The fluid of the table that meets the thermal choice and the bounds at the least cost
-    /// ([`choose_fluid`]).
-    Auto,
-}
-
-/// How one fluid of the table fared in [`choose_fluid`].
-#[derive(Debug, Clone, PartialEq)]
-pub struct Candidate {
-    /// The fluid's name.
-    pub name: &'static str,
-    /// Its thermal factor, Mach and Reynolds numbers and cost, or why it was ruled out.
-    pub outcome: Result<CandidateFit, String>,
-}
-
-/// A fluid that meets the bounds: what it gives and what it costs.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct CandidateFit {
-    /// f = E/(kB T).
-    pub thermal_factor: f64,
-    /// Mach number at the characteristic velocity.
-    pub mach: f64,
-    /// Reynolds number ρUL/η.
-    pub reynolds: f64,
-    /// Time step, model units ([`FluidModel::default_timestep`]).
-    pub timestep: f64,
-    /// Estimated CPU time on 2 threads of the reference machine for one physical millisecond
-    /// of 1000 µm³ of this fluid, s: particles n·V/r³ times steps 1 ms/(τΔt) over the fluid's
-    /// measured throughput.
-    pub cost_s_per_ms_per_1000_um3: f64,
-}
-
-/// The fluid a scenario runs with, its unit mapping and why it was chosen.
-#[derive(Debug, Clone, PartialEq)]
-pub struct FluidDecision {
-    pub fluid: FluidModel,
-    pub map: UnitMapping,
-    /// Every fluid considered (one for a named fluid).
-    pub candidates: Vec<Candidate>,
-    /// One sentence: why this fluid.
-    pub reason: String,
-}
-
-/// Estimated CPU seconds (2 threads) per physical ms of 1000 µm³ of `fluid` under `map` at the
-/// model time step `dt` ([`CandidateFit::cost_s_per_ms_per_1000_um3`]).
-pub fn fluid_cost(fluid: &FluidModel, map: &UnitMapping, dt: f64) -> f64 {
-    let particles = fluid.density * 1e-15 / map.length_m.powi(3);
-    let steps = 1e-3 / (map.time_s * dt);
-    particles * steps / fluid.particle_steps_per_s
-}
-
-/// Chooses the fluid and the unit mapping of `sys` at `length_m_per_rc`.
-///
-/// A named fluid gets [`UnitMapping::choose`] as it is. "auto" tries every fluid of
-/// [`FluidModel::table`] under `thermal` and keeps those whose mapping exists with Mach ≤
-/// `max_mach` (for every thermal choice, not only "auto") and Reynolds ≤ `max_reynolds`; of
-/// those, under [`ThermalChoice::Auto`] the one with the least thermal factor (the most
-/// faithful membrane temperature; ties within 1 % go to the cheaper), otherwise the cheapest
-/// ([`fluid_cost`]). Errors: an unknown name (key `fluid`), `max_reynolds` outside (0,
-/// [`REYNOLDS_LIMIT`]], no fluid meeting the bounds (every fluid's reason in the message), and
-/// the errors of [`UnitMapping::choose`].
-pub fn choose_fluid(
-    sys: &PhysicalSystem,
-    length_m_per_rc: f64,
-    thermal: ThermalChoice,
-    choice: &FluidChoice,
-    max_mach: f64,
-    max_reynolds: f64,
-) -> Result<FluidDecision, UnitsError> {
-    let fit = |fluid: &FluidModel, map: &UnitMapping| {
-        let g = groups_model(sys, map, fluid);
-        let dt = fluid.default_timestep(sys, map.length_m);
-        CandidateFit {
-            thermal_factor: map.thermal_factor,
-            mach: g.mach,
-            reynolds: g.reynolds,
-            timestep: dt,
-            cost_s_per_ms_per_1000_um3: fluid_cost(fluid, map, dt),
-        }
-    };
-    match choice {
-        FluidChoice::Named(name) => {
-            let fluid = FluidModel::by_name(name).ok_or_else(|| UnitsError::UnknownFluid {
-                name: name.clone(),
-                allowed: FluidModel::names().join(", "),
-            })?;
-            let map = UnitMapping::choose(sys, &fluid, length_m_per_rc, thermal)?;
-            let c = fit(&fluid, &map);
-            Ok(FluidDecision {
-                candidates: vec![Candidate {
-                    name: fluid.name,
-                    outcome: Ok(c),
-                }],
-                reason: format!("named by model.fluid = \"{}\"", fluid.name),
-                fluid,
-                map,
-            })
-        }
-        FluidChoice::Auto => {
-            if !(max_reynolds.is_finite() && max_reynolds > 0.0 && max_reynolds <= REYNOLDS_LIMIT) {
-                return Err(UnitsError::OutOfRange {
-                    key: "max_reynolds",
-                    value: max_reynolds,
-                    allowed: format!("must be in (0, {REYNOLDS_LIMIT}]"),
-                });
-            }
-            let mut candidates = Vec::new();
-            let mut feasible: Vec<(FluidModel, UnitMapping, CandidateFit)> = Vec::new();
-            for fluid in FluidModel::table() {
-                let outcome = match UnitMapping::choose(sys, &fluid, length_m_per_rc, thermal) {
-                    Err(e) => Err(e.to_string()),
-                    Ok(map) => {
-                        let c = fit(&fluid, &map);
-                        if c.mach > max_mach * (1.0 + 1e-12) {
-                            Err(format!("Mach {:.3} at f = {:.3} exceeds max_mach = {max_mach}", c.mach, c.thermal_factor))
-                        } else if c.reynolds > max_reynolds {
-                            Err(format!(
-                                "Reynolds {:.3} at f = {:.3} exceeds max_reynolds = {max_reynolds}",
-                                c.reynolds, c.thermal_factor
-                            ))
-                        } else {
-                            feasible.push((fluid.clone(), map, c));
-                            Ok(c)
-                        }
-                    }
-                };
-                candidates.push(Candidate {
-                    name: fluid.name,
-                    outcome,
-                });
-            }
-            let by_thermal = matches!(thermal, ThermalChoice::Auto { .. });
-            let best = feasible
-                .iter()
-                .min_by(|(_, _, a), (_, _, b)| {
-                    let f_differs = (a.thermal_factor / b.thermal_factor - 1.0).abs() > 0.01;
-                    if by_thermal && f_differs {
-                        a.thermal_factor.total_cmp(&b.thermal_factor)
-                    } else {
-                        a.cost_s_per_ms_per_1000_um3.total_cmp(&b.cost_s_per_ms_per_1000_um3)
-                    }
-                })
-                .cloned();
-            let Some((fluid, map, c)) = best else {
-                let why: Vec<String> = candidates
-                    .iter()
-                    .map(|c| format!("{}: {}", c.name, c.outcome.as_ref().err().cloned().unwrap_or_default()))
-                    .collect();
-                return Err(UnitsError::NoFluid { reasons: why.join("; ") });
-            };
-            let reason = if feasible.len() == 1 {
-                format!("the only fluid of the table that meets the bounds (Mach ≤ {max_mach}, Re ≤ {max_reynolds})")
-            } else if by_thermal {
-                format!(
-                    "of the {} fluids that meet the bounds (Mach ≤ {max_mach}, Re ≤ {max_reynolds}), the one with the least thermal factor (f = {:.3}), then the least cost",
-                    feasible.len(),
-                    c.thermal_factor
-                )
-            } else {
-                format!(
-                    "of the {} fluids that meet the bounds (Mach ≤ {max_mach}, Re ≤ {max_reynolds}) at f = {:.3}, the cheapest",
-                    feasible.len(),
-                    c.thermal_factor
-                )
-            };
-            Ok(FluidDecision {
-                fluid,
-                map,
-                candidates,
-                reason,
-            })
-        }
-    }
-}
-
-/// The fluid of a run for summary.json: its name, pair parameters, density and measured
-/// properties (model units), and the run's time step.
-pub fn fluid_json(f: &FluidModel, timestep: f64) -> serde_json::Value {
-    serde_json::json!({
-        "name": f.name, "density": f.density, "a": f.pair.a, "gamma": f.pair.gamma,
-        "weight_exponent": f.pair.s, "kbt": f.pair.kbt, "viscosity": f.viscosity,
-        "viscosity_se": f.viscosity_se, "sound_speed": f.sound_speed, "wall_slip": f.wall_slip,
-        "fluid_timestep": f.timestep, "timestep": timestep,
-    })
-}
-
-/// The `--explain-units` block on the fluid: the chosen fluid's parameters and measured
-/// properties, every candidate with its outcome, and why.
-pub fn explain_fluid(d: &FluidDecision) -> String {
-    let f = &d.fluid;
-    let p = f.pair;
-    let mut s = String::new();
-    let _ = writeln!(s, "Fluid: \"{}\" ({})", f.name, d.reason);
-    let _ = writeln!(
-        s,
-        "    pair: n = {}, a = {}, γ = {}, kBT = {}, rc = {}, weight exponent s = {} (w^D exponent {}), particle mass {}",
-        f.density,
-        p.a,
-        p.gamma,
-        p.kbt,
-        p.rc,
-        p.s,
-        2.0 * p.s,
-        f.mass
-    );
-    let _ = writeln!(
-        s,
-        "    measured: η = {} ± {} (kinetic theory {:.3}), sound speed c = {:.3}, Δt = {} (kBT at rest {:.4}), wall slip {} rc, {:.2e} particle-steps/s on 2 threads",
-        f.viscosity,
-        f.viscosity_se,
-        params::kinetic_theory_viscosity(&p, f.density, f.mass),
-        f.sound_speed,
-        f.timestep,
-        f.kbt_at_timestep,
-        f.wall_slip,
-        f.particle_steps_per_s
-    );
-    let _ = writeln!(s, "    re-measured by: {}", f.measured_by);
-    let _ = writeln!(
-        s,
-        "    candidates (f, Mach, Re, Δt, CPU s per physical ms of 1000 µm³ on 2 threads):"
-    );
-    for c in &d.candidates {
-        match &c.outcome {
-            Ok(x) => {
-                let _ = writeln!(
-                    s,
-                    "      {:<10} f = {:.3}, Ma = {:.3}, Re = {:.3}, Δt = {:.4}, cost {:.3} s{}",
-                    c.name,
-                    x.thermal_factor,
-                    x.mach,
-                    x.reynolds,
-                    x.timestep,
-                    x.cost_s_per_ms_per_1000_um3,
-                    if c.name == f.name { "  ← chosen" } else { "" }
-                );
-            }
-            Err(e) => {
-                let _ = writeln!(s, "      {:<10} ruled out: {e}", c.name);
-            }
-        }
-    }
-    s
-}
-
 /// Every scale and every group in SI and model units side by side, the time step in seconds,
 /// and what Re, Mach and f mean for the run.
 pub fn explain(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> String {
@@ -1327,102 +1091,6 @@ mod tests {
 
     /// Auto raises f until Mach = max_mach exactly when f = 1 would exceed it, and keeps f = 1
     /// (the Exact mapping) when that fits.
-    /// The fluid chooser at the worked default (10 µm, 1 mm/s, 1 µm per rc): under thermal
-    /// "auto" it takes the dense fluid at f = 1 (the capillary fluid needs f ≈ 10.8); at a
-    /// given f both fluids meet the bounds and the cheaper (capillary) wins; "exact" rules the
-    /// capillary fluid out by its Mach number. The chosen mapping's groups equal the SI ones
-    /// (κ/kBT to the factor f), and a named fluid is taken as named.
-    #[test]
-    fn units_fluid_chooser() {
-        let sys = PhysicalSystem::capillary_default();
-        let auto = |thermal| choose_fluid(&sys, 1e-6, thermal, &FluidChoice::Auto, MACH_LIMIT, REYNOLDS_WARN).unwrap();
-        let d = auto(ThermalChoice::default());
-        assert_eq!(d.fluid.name, "dense", "{}", explain_fluid(&d));
-        assert_eq!(d.map.thermal_factor, 1.0);
-        let (a, b) = (groups_si(&sys), groups_model(&sys, &d.map, &d.fluid));
-        assert!(rel(b.kappa_over_kbt, a.kappa_over_kbt) < 1e-12);
-        assert!(rel(b.capillary_number, a.capillary_number) < 1e-12);
-        assert!(b.mach < 0.15 && b.reynolds < REYNOLDS_WARN, "{b:?}");
-        // the capillary fluid at its f ≈ 10.8 runs at Re 1.13: over the default bound of 1
-        let cap = d.candidates.iter().find(|c| c.name == "capillary").unwrap();
-        assert!(cap.outcome.as_ref().unwrap_err().contains("Reynolds 1.13"), "{cap:?}");
-        let auto = |thermal| choose_fluid(&sys, 1e-6, thermal, &FluidChoice::Auto, MACH_LIMIT, 2.0).unwrap();
-        let d = auto(ThermalChoice::default());
-        assert_eq!(d.fluid.name, "dense", "{}", explain_fluid(&d));
-        let cap = d.candidates.iter().find(|c| c.name == "capillary").unwrap();
-        let cf = cap.outcome.as_ref().unwrap();
-        assert!((cf.thermal_factor - 10.84).abs() < 0.05, "{cf:?}");
-        // a given f (Re ≤ 2): both meet the bounds; the capillary fluid is cheaper
-        let d = auto(ThermalChoice::Factor(11.0));
-        assert_eq!(d.fluid.name, "capillary", "{}", explain_fluid(&d));
-        assert!(d.candidates.iter().all(|c| c.outcome.is_ok()));
-        let costs: Vec<f64> = d
-            .candidates
-            .iter()
-            .map(|c| c.outcome.as_ref().unwrap().cost_s_per_ms_per_1000_um3)
-            .collect();
-        assert!(costs[0] < costs[1], "{costs:?}");
-        // exact: the capillary fluid would run at Mach ≈ 2.7
-        let d = auto(ThermalChoice::Exact);
-        assert_eq!(d.fluid.name, "dense");
-        let cap = d.candidates.iter().find(|c| c.name == "capillary").unwrap();
-        assert!(cap.outcome.as_ref().unwrap_err().contains("Mach"), "{cap:?}");
-        // a named fluid, as named, with the same mapping as UnitMapping::choose
-        let named = choose_fluid(
-            &sys,
-            1e-6,
-            ThermalChoice::default(),
-            &FluidChoice::Named("capillary".into()),
-            MACH_LIMIT,
-            REYNOLDS_WARN,
-        )
-        .unwrap();
-        let direct = UnitMapping::choose(&sys, &FluidModel::capillary(), 1e-6, ThermalChoice::default()).unwrap();
-        assert_eq!(named.map, direct);
-        assert_eq!(named.fluid, FluidModel::capillary());
-        // the inner fluid five times more viscous shortens the step five-fold, and the
-        // membrane's friction with the dense fluid (γ_fsi ≈ 50 > γ = 41) shortens it further
-        let mut visc = sys.clone();
-        visc.viscosity_ratio = 5.0;
-        let d = choose_fluid(&visc, 1e-6, ThermalChoice::Exact, &FluidChoice::Auto, MACH_LIMIT, REYNOLDS_WARN).unwrap();
-        let c = d.candidates.iter().find(|c| c.name == "dense").unwrap().outcome.clone().unwrap();
-        let dense = FluidModel::dense();
-        let n_m = 500.0 / (visc.cell_area_m2 / 1e-12);
-        let g_fsi = fsi_friction(dense.viscosity, dense.density, n_m, dense.pair.s, 1.0);
-        assert!(g_fsi > dense.pair.gamma, "{g_fsi}");
-        assert!(rel(c.timestep, dense.timestep * dense.pair.gamma / (5.0 * g_fsi)) < 1e-12);
-        // the capillary fluid's γ = 120 exceeds its γ_fsi ≈ 30: its step is its own (λ = 1)
-        let cap = FluidModel::capillary();
-        assert_eq!(cap.default_timestep(&sys, 1e-6), cap.timestep);
-    }
-
-    /// Bounds no fluid meets, an unknown name and a Reynolds bound out of range fail with the
-    /// key `fluid` or `max_reynolds`, each fluid's reason in the message.
-    #[test]
-    fn units_fluid_chooser_bad_input() {
-        let mut sys = PhysicalSystem::capillary_default();
-        sys.velocity_m_s = 0.05;
-        let e = choose_fluid(&sys, 1e-6, ThermalChoice::Exact, &FluidChoice::Auto, MACH_LIMIT, REYNOLDS_WARN).unwrap_err();
-        assert_eq!(e.key(), "fluid");
-        let m = e.to_string();
-        assert!(m.contains("capillary:") && m.contains("dense:") && m.contains("allowed"), "{m}");
-        let e = choose_fluid(
-            &sys,
-            1e-6,
-            ThermalChoice::Exact,
-            &FluidChoice::Named("water".into()),
-            MACH_LIMIT,
-            REYNOLDS_WARN,
-        )
-        .unwrap_err();
-        assert_eq!(e.key(), "fluid");
-        assert!(e.to_string().contains("capillary, dense"), "{e}");
-        for bad in [0.0, 6.0, f64::NAN] {
-            let e = choose_fluid(&sys, 1e-6, ThermalChoice::Exact, &FluidChoice::Auto, MACH_LIMIT, bad).unwrap_err();
-            assert_eq!(e.key(), "max_reynolds");
-        }
-    }
-
     #[test]
     fn units_auto_thermal_factor() {
         let fluid = FluidModel::capillary();
