@@ -15,8 +15,10 @@
 
 mod block_matrix;
 pub mod cellshape;
+pub mod confine;
 pub mod coupling;
 pub mod forces;
+mod lbfgs;
 pub mod mesh;
 pub mod meshgen;
 pub mod meshio;

@@ -601,7 +601,7 @@ fn build(plan: &Plan) -> Result<(ShearSim, Mesh, serde_json::Value), RunError> {
         }
     };
     let streaming = |x: DVec3| plan.streaming(x);
-    let sim = place_cell(plan, &base, &rest, model, Some(&streaming))?;
+    let sim = place_cell(plan, &base, &rest, &rest.vertices, model, Some(&streaming))?;
     Ok((sim, rest, info))
 }
 

@@ -19,9 +19,10 @@ use crate::cell::build::{
     cell_membrane_viscosity, cell_mesh_um, check_membrane_timestep, membrane_model, place_cell, CellPlan,
 };
 use crate::cell::checkpoint::{open_cell_trajectory, restore_cell_run, save_cell_run, CheckpointHead, Restored};
+use crate::cell::placement::{capsule_radius, press_into_tube, CAPSULE_MARGIN, CLEARANCE_RC};
 use crate::cell::section::{cell_mapping, cell_params, resolve_substeps, validate_cell, validate_model, ModelKeys};
 use crate::cell::summary::{crossings_json, membrane_viscosity_summary, step_shares};
-use crate::cell::{CellSection, CellSim, VERTEX_MASS};
+use crate::cell::{CellOrientation, CellSection, CellSim, VERTEX_MASS};
 use crate::context::{RunContext, RunError};
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
@@ -84,6 +85,10 @@ pub struct CapillaryTube {
     /// Length along the periodic axis, µm (default 45).
     #[serde(default = "d_len")]
     pub length_um: f64,
+    /// How the resting cell faces the axis as it enters: "face-on" (default, the paper's),
+    /// "edge-on" or "random" (a rotation drawn from the seed).
+    #[serde(default, skip_serializing_if = "CellOrientation::is_face_on")]
+    pub cell_orientation: CellOrientation,
 }
 
 impl CapillaryTube {
@@ -370,19 +375,26 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
             range(&key("stretch_force_n"), f, 0.0, 1e-9, "0–1e-9 N (0–1000 pN)")?;
         }
     }
-    // the cell must fit: its diameter plus two repulsion ranges inside the tube
+    // the cell must fit: at rest, or pressed into the tube (narrower than the cell) with room
+    // for the wall's slip, its repulsion range and a clearance; no closed surface of the cell's
+    // area and volume is narrower than its capsule
     let d0 = 2.0 * EvansFung::healthy_um().r;
     let slip = FluidModel::by_name(&s.model.fluid).map_or_else(
         || FluidModel::table().iter().map(|f| f.wall_slip).fold(0.0, f64::max),
         |f| f.wall_slip,
     );
-    let margin = 2.0 * (s.model.wall_repulsion_range_rc + slip) * s.model.length_um_per_rc;
-    if d0 + margin >= s.tube.diameter_um {
+    let gap_um = (slip + s.model.wall_repulsion_range_rc + CLEARANCE_RC) * s.model.length_um_per_rc;
+    let (area, volume) = EvansFung::healthy_um().area_and_volume();
+    let narrowest = CAPSULE_MARGIN * capsule_radius(area, volume);
+    if 0.5 * s.tube.diameter_um - gap_um < narrowest {
         return Err(fail(
             "tube.diameter_um",
             format!("{}", s.tube.diameter_um),
             &format!(
-                "larger than the resting cell's diameter {d0:.2} µm plus twice the wall repulsion range and the wall's slip length ({margin:.2} µm): the biconcave cell is placed on the axis, facing the flow"
+                "at least {:.2} µm at model.length_um_per_rc = {}: the cell ({area:.0} µm², {volume:.0} µm³) is pressed into a tube narrower than it is, but not below {narrowest:.2} µm of radius ({CAPSULE_MARGIN} × the {:.2} µm capsule of its area and volume), and the wall's slip, repulsion range and a clearance of {CLEARANCE_RC} rc take {gap_um:.2} µm more; a finer resolution (smaller model.length_um_per_rc) narrows that gap",
+                2.0 * (narrowest + gap_um),
+                s.model.length_um_per_rc,
+                capsule_radius(area, volume)
             ),
         ));
     }
@@ -499,16 +511,40 @@ impl<'a> Plan<'a> {
         cell_mesh_um(&self.s.cell, self.s.seed, &self.s.base_dir)
     }
 
-    /// The resting mesh in model units, symmetry axis along the tube, centred on the axis.
+    /// The resting mesh in model units, turned to `tube.cell_orientation` (face-on: symmetry
+    /// axis along the tube), centred on the axis.
     fn rest_mesh(&self) -> Result<(Mesh, serde_json::Value), RunError> {
         let (mut mesh, info) = self.mesh_um()?;
         let scale = 1e-6 / self.map.length_m;
         let c = self.cell_centre();
-        // the generated shape's symmetry axis is y: rotate it onto z, (x, y, z) → (x, −z, y)
+        let (o, seed) = (self.s.tube.cell_orientation, self.s.seed);
         for v in mesh.vertices.iter_mut() {
-            *v = DVec3::new(v.x, -v.z, v.y) * scale + c;
+            *v = o.turn(*v, seed) * scale + c;
         }
         Ok((mesh, info))
+    }
+
+    /// Where the vertices start: the resting mesh when it fits the tube (within the wall's
+    /// repulsion range of the wall surface), else the cell pressed into the radius that leaves
+    /// the range and a clearance of [`CLEARANCE_RC`] free ([`press_into_tube`]). With what was
+    /// done, for `summary.json`.
+    fn start_positions(&self, model: &MembraneModel, rest: &Mesh) -> Result<(Vec<DVec3>, serde_json::Value), RunError> {
+        let c = self.cell_centre();
+        let centre = [c.x, c.y];
+        let rc = self.fluid.pair.rc;
+        let range = self.s.model.wall_repulsion_range_rc * rc;
+        let orientation = serde_json::to_value(self.s.tube.cell_orientation).unwrap_or_default();
+        let widest = hemodpd_membrane::confine::widest(&rest.vertices, centre);
+        if widest <= self.wall_radius - range {
+            return Ok((
+                rest.vertices.clone(),
+                json!({ "orientation": orientation, "pressed": false, "widest_at_rest_rc": widest }),
+            ));
+        }
+        let radius = self.wall_radius - range - CLEARANCE_RC * rc;
+        let (x, mut info) = press_into_tube(model, &rest.vertices, centre, radius)?;
+        info["orientation"] = orientation;
+        Ok((x, info))
     }
 
     fn model(&self, rest: &Mesh) -> Result<MembraneModel, RunError> {
@@ -597,12 +633,12 @@ const STRETCH_END_FRACTION: f64 = 0.05;
 /// Builds the simulation at step 0: the tube's walls cut from an equilibrated fluid, the cell
 /// on the axis.
 fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunError> {
-    {
-        // before the fluid is built: cheap, and it names the fix
-        let (rest, _) = plan.rest_mesh()?;
-        let model = plan.model(&rest)?;
-        check_membrane_timestep(plan, &model, &rest)?;
-    }
+    // before the fluid is built: cheap, and a failure names the fix
+    let (rest, mut info) = plan.rest_mesh()?;
+    let model = plan.model(&rest)?;
+    check_membrane_timestep(plan, &model, &rest)?;
+    let (start, placement) = plan.start_positions(&model, &rest)?;
+    info["placement"] = placement;
     let setup = WallSetup {
         shape: plan.shape,
         pair: plan.fluid.pair,
@@ -611,9 +647,7 @@ fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunErro
         equilibration_steps: 200,
     };
     let (_, base) = walls::build(&plan.sim_config(), &setup, plan.s.seed).map_err(engine_err)?;
-    let (rest, info) = plan.rest_mesh()?;
-    let model = plan.model(&rest)?;
-    let sim = place_cell(plan, &base, &rest, model, None)?;
+    let sim = place_cell(plan, &base, &rest, &start, model, None)?;
     Ok((sim, rest, info))
 }
 

@@ -250,14 +250,16 @@ pub(crate) fn cell_config(plan: &impl CellPlan, first: usize) -> CellConfig {
 }
 
 /// Places the cell in an equilibrated fluid `base` (fluid and, with walls, wall particles of
-/// [`walls`]' types) and assembles the simulation: fluid inside the resting mesh `rest` becomes
-/// cytosol, the rest plasma, wall particles [`WALL`], and the vertices follow with the next
-/// ids. `streaming` (None: at rest) is the imposed flow's velocity at a point, added to the
+/// [`walls`]' types) and assembles the simulation: the vertices start at `start` (the resting
+/// mesh `rest`, or the cell pressed into a narrow tube, [`super::placement`]), fluid inside
+/// that surface becomes cytosol, the rest plasma, wall particles [`WALL`], and the vertices
+/// follow with the next ids. `streaming` (None: at rest) is the imposed flow's velocity at a point, added to the
 /// fluid's and given to the vertices.
 pub(crate) fn place_cell(
     plan: &impl CellPlan,
     base: &Particles,
     rest: &Mesh,
+    start: &[DVec3],
     model: MembraneModel,
     streaming: Option<&dyn Fn(DVec3) -> DVec3>,
 ) -> Result<CellSim, RunError> {
@@ -269,7 +271,7 @@ pub(crate) fn place_cell(
         let (t, v) = if base.ptype[i] == walls::WALL_TYPE {
             (WALL, base.vel[i])
         } else {
-            let t = if hemodpd_membrane::mesh::contains(x, &rest.vertices, &rest.triangles) {
+            let t = if hemodpd_membrane::mesh::contains(x, start, &rest.triangles) {
                 INNER
             } else {
                 OUTER
@@ -280,12 +282,12 @@ pub(crate) fn place_cell(
         max_id = max_id.max(base.id[i]);
     }
     let first = p.len();
-    for (k, v) in rest.vertices.iter().enumerate() {
+    for (k, v) in start.iter().enumerate() {
         let u = streaming.map_or(DVec3::ZERO, |u| u(*v));
         p.push(*v, u, MEMBRANE, max_id + 1 + k as u32);
     }
     let walls_ext = plan_walls(plan)?.map(Timed::new);
-    let cell = Cell::new(model, cell_config(plan, first), rest.vertices.clone()).map_err(engine_err)?;
+    let cell = Cell::new(model, cell_config(plan, first), start.to_vec()).map_err(engine_err)?;
     Simulation::with_extension(plan.sim_config(), field, p, (walls_ext, cell)).map_err(describe_engine_error)
 }
 

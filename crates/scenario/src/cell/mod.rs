@@ -13,14 +13,17 @@
 //! its `[model]` with `model_section!`) and their validation; in [`build`], the force field,
 //! the membrane model and its dry run, and the cell placed in an equilibrated fluid (the
 //! kind's [`build::CellPlan`] says where); in `checkpoint`, saving and restoring a run and
-//! creating its trajectory; in `summary`, the blocks of `summary.json` both kinds write.
+//! creating its trajectory; in [`placement`], the orientation a cell enters a tube with and
+//! the cell pressed into a tube narrower than it is; in `summary`, the blocks of `summary.json` both kinds write.
 
 pub mod build;
 pub(crate) mod checkpoint;
+pub mod placement;
 pub mod section;
 pub(crate) mod summary;
 
 pub use build::{describe_engine_error, CellSim};
+pub use placement::CellOrientation;
 pub use section::{CellSection, ModelKeys, SubstepSetting, ThermalSetting, ViscosityForm};
 
 /// Type of the outer fluid (plasma).
