@@ -83,7 +83,7 @@ pub fn choose_fluid(
 ) -> Result<FluidDecision, UnitsError> {
     let fit = |fluid: &FluidModel, map: &UnitMapping| {
         let g = groups_model(sys, map, fluid);
-        let dt = fluid.default_timestep(sys, map.length_m);
+        let dt = fluid.default_timestep(sys, map);
         CandidateFit {
             thermal_factor: map.thermal_factor,
             mach: g.mach,
@@ -353,11 +353,23 @@ mod tests {
         // the capillary fluid (γ = 120 > its γ_fsi ≈ 30, limit 0.48 = 1.6 × its own γΔt): its
         // step is its own at λ = 1 and at N = 100 (γ_fsi ≈ 150), 0.48/600 at λ = 5
         let cap = FluidModel::capillary();
-        assert_eq!(cap.default_timestep(&sys, 1e-6), cap.timestep);
+        let map = |s: &PhysicalSystem| UnitMapping::choose(s, &cap, 1e-6, ThermalChoice::default()).unwrap();
+        assert_eq!(cap.default_timestep(&sys, &map(&sys)), cap.timestep);
         let mut few = sys.clone();
         few.vertices = 100;
-        assert_eq!(cap.default_timestep(&few, 1e-6), cap.timestep);
-        assert!(rel(cap.default_timestep(&visc, 1e-6), 0.48 / 600.0) < 1e-12);
+        assert_eq!(cap.default_timestep(&few, &map(&few)), cap.timestep);
+        assert!(rel(cap.default_timestep(&visc, &map(&visc)), 0.48 / 600.0) < 1e-12);
+        // the dense fluid at f = 1 and λ = 1: the membrane (μ0 ≈ 2004 in model units) sets the
+        // step, MEMBRANE_STEP_LIMIT/√μ0 ≈ 0.00134, below the friction bound 0.123/γ_fsi ≈ 0.00244
+        let d = auto(ThermalChoice::Exact);
+        let mu0 = d.map.modulus_to_model(sys.shear_modulus_n_per_m);
+        assert!((mu0 / 2004.6 - 1.0).abs() < 1e-3, "{mu0}");
+        assert!(
+            rel(
+                dense.default_timestep(&sys, &d.map),
+                crate::units::MEMBRANE_STEP_LIMIT / mu0.sqrt()
+            ) < 1e-12
+        );
     }
 
     /// Bounds no fluid meets, an unknown name and a Reynolds bound out of range fail with the

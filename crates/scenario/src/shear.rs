@@ -449,7 +449,7 @@ pub struct Plan<'a> {
 impl<'a> Plan<'a> {
     pub fn new(s: &'a ShearScenario) -> Result<Self, RunError> {
         let (sys, FluidDecision { fluid, map, .. }) = s.mapping()?;
-        let dt = s.model.timestep.unwrap_or(fluid.default_timestep(&sys, map.length_m));
+        let dt = s.model.timestep.unwrap_or(fluid.default_timestep(&sys, &map));
         let rate = s.shear_rate() * map.time_s;
         let mut l = DVec3::from_array(s.shear.box_um.map(|x| map.length_to_model(um_to_m(x))));
         let rc = fluid.pair.rc;

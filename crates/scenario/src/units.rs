@@ -225,16 +225,22 @@ impl FluidModel {
 
     /// The default time step of a cell in this fluid: the fluid's own step, shortened where a
     /// pair's friction would exceed the fluid's validated [`friction_step_limit`]
-    /// (Self::friction_step_limit) on γΔt (per unit mass). The inner fluid has γ × λ, and the
-    /// membrane vertices (mass 1) feel γ_fsi ([`fsi_friction`], × λ inside) from the fluid,
-    /// which grows as the vertices thin out (small N or a fine resolution). So
-    /// Δt = min(Δt_fluid, limit / (max(1, λ) · max(γ, γ_fsi))), with γ_fsi for the N-vertex
-    /// cell of area A at `length_m` metres per rc.
-    pub fn default_timestep(&self, sys: &PhysicalSystem, length_m: f64) -> f64 {
+    /// (Self::friction_step_limit) on γΔt (per unit mass), or where the membrane is too stiff
+    /// for it. The inner fluid has γ × λ, and the membrane vertices (mass 1) feel γ_fsi
+    /// ([`fsi_friction`], × λ inside) from the fluid, which grows as the vertices thin out
+    /// (small N or a fine resolution). The membrane's in-plane modulus μ0 in model units,
+    /// μ0 r²/(f kBT), grows as the thermal factor f falls; in flow its links are stretched
+    /// towards the WLC limit and stiffen further, so Δt √(μ0/m) is held to
+    /// [`MEMBRANE_STEP_LIMIT`]. So Δt = min(Δt_fluid, limit / (max(1, λ) · max(γ, γ_fsi)),
+    /// MEMBRANE_STEP_LIMIT / √(μ0/m)), with γ_fsi for the N-vertex cell of area A.
+    pub fn default_timestep(&self, sys: &PhysicalSystem, map: &UnitMapping) -> f64 {
+        let length_m = map.length_m;
         let vertex_density = sys.vertices as f64 / (sys.cell_area_m2 / (length_m * length_m));
         let gamma_fsi = fsi_friction(self.viscosity, self.density, vertex_density, self.pair.s, self.pair.rc);
         let gamma_max = sys.viscosity_ratio.max(1.0) * self.pair.gamma.max(gamma_fsi);
-        self.timestep.min(self.friction_step_limit / gamma_max)
+        let mu0 = map.modulus_to_model(sys.shear_modulus_n_per_m);
+        let membrane = MEMBRANE_STEP_LIMIT / (mu0 / self.mass).sqrt();
+        self.timestep.min(self.friction_step_limit / gamma_max).min(membrane)
     }
 
     fn validate(&self) -> Result<(), UnitsError> {
@@ -246,6 +252,13 @@ impl FluidModel {
         positive("fluid.pair.kbt", self.pair.kbt)
     }
 }
+
+/// Largest Δt·√(μ0/m) of a cell in flow (μ0 the membrane's shear modulus in model units, m a
+/// vertex's mass). Measured on the 10 µm capillary protocol at 1 mm/s, N = 500: the dense fluid
+/// at f = 1 (μ0 = 2004) overstretched a link 12 ms into the flow at Δt = 0.00244 (0.109; with 4
+/// membrane sub-steps at 24 ms) and ran the whole protocol at 0.0015 (0.067); the capillary
+/// fluid runs at 0.034 (μ0 = 185, Δt = 0.0025). The limit takes the stable point less 10 %.
+pub const MEMBRANE_STEP_LIMIT: f64 = 0.06;
 
 /// The physical system of a capillary scenario, all in SI.
 #[derive(Debug, Clone, PartialEq)]
@@ -795,9 +808,9 @@ pub fn explain(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> Str
         "time step",
         format!(
             "Δt = {} model = {:.4e} s ({:.0} steps per ms; the default, model.timestep overrides it)",
-            fluid.default_timestep(sys, m.length_m),
-            fluid.default_timestep(sys, m.length_m) * m.time_s,
-            1e-3 / (fluid.default_timestep(sys, m.length_m) * m.time_s)
+            fluid.default_timestep(sys, m),
+            fluid.default_timestep(sys, m) * m.time_s,
+            1e-3 / (fluid.default_timestep(sys, m) * m.time_s)
         ),
     );
     let _ = writeln!(s, "  values:                      SI                      model");

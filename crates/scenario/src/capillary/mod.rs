@@ -452,7 +452,7 @@ pub struct Plan<'a> {
 impl<'a> Plan<'a> {
     pub fn new(s: &'a CapillaryScenario) -> Result<Self, RunError> {
         let (sys, FluidDecision { fluid, map, .. }) = s.mapping()?;
-        let dt = s.model.timestep.unwrap_or(fluid.default_timestep(&sys, map.length_m));
+        let dt = s.model.timestep.unwrap_or(fluid.default_timestep(&sys, &map));
         let radius = map.length_to_model(0.5 * s.tube.diameter_m());
         let length = map.length_to_model(s.tube.length_m());
         let rc = fluid.pair.rc;
@@ -1116,15 +1116,13 @@ fn tail_mean(samples: &[&Sample], f: impl Fn(&Sample) -> f64) -> f64 {
     tail.iter().map(|s| f(s)).sum::<f64>() / tail.len() as f64
 }
 
-fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
+/// Writes `cell.csv`, the time series in SI, from the samples taken so far (also when the run
+/// stops on an error: what was measured up to it is kept).
+fn write_time_series(run: &Run, ctx: &RunContext) -> Result<(), RunError> {
     let plan = run.plan;
     let m = &plan.map;
     let (l, v, t) = (m.length_m * 1e6, m.velocity_to_si(1.0), m.time_s);
-    let cell = &run.sim.extension().1;
-    let stats = cell.stats();
     let fluid_kbt = plan.fluid.pair.kbt;
-    let mut stages = Vec::new();
-    // time series CSV, SI
     let mut csv = String::from(
         "time_s,stage,stage_time_s,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio,body_force_n,length_over_width\n",
     );
@@ -1150,6 +1148,18 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     }
     let path = ctx.out_dir.join("cell.csv");
     std::fs::write(&path, csv).map_err(|source| RunError::Io { path, source })?;
+    Ok(())
+}
+
+fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
+    let plan = run.plan;
+    let m = &plan.map;
+    let (l, v, t) = (m.length_m * 1e6, m.velocity_to_si(1.0), m.time_s);
+    let cell = &run.sim.extension().1;
+    let stats = cell.stats();
+    let fluid_kbt = plan.fluid.pair.kbt;
+    let mut stages = Vec::new();
+    write_time_series(run, ctx)?;
     for (k, st) in plan.s.stage.iter().enumerate() {
         let smp: Vec<&Sample> = run.st.samples.iter().filter(|s| s.stage == k).collect();
         let (steps, steady) = run.st.stage_ends.get(k).copied().unwrap_or((0, false));
@@ -1331,7 +1341,17 @@ pub fn run_from(
             eprintln!("warning: {w}");
         }
     }
-    driver::drive(&mut run, ctx, resumed, s.output.checkpoint_every_steps)?;
+    if let Err(e) = driver::drive(&mut run, ctx, resumed, s.output.checkpoint_every_steps) {
+        // keep what was measured: the time series up to the error (the trajectory holds its
+        // frames, the last checkpoint the state before it)
+        if !matches!(e, RunError::Interrupted { .. }) && write_time_series(&run, ctx).is_ok() && ctx.progress {
+            eprintln!(
+                "the time series up to the error is in {}",
+                ctx.out_dir.join("cell.csv").display()
+            );
+        }
+        return Err(e);
+    }
     let r = results(&run, ctx)?;
     if let Some(w) = run.traj.take() {
         w.close().map_err(out_err)?;
