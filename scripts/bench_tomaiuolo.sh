@@ -25,6 +25,6 @@ for name in ("d6.6", "d4.7"):
     s = json.load(open(f"{out}/{name}/summary.json"))
     r = s["results"]
     perf = r["performance"]
-    print(f"| {name[1:]} µm | {s['wall_time_s']:.0f} | {perf.get('steps', '')} | {perf.get('steps_per_second', 0):.0f} | "
+    print(f"| {name[1:]} µm | {s['wall_time_s']:.0f} | {int(perf.get('steps', 0))} | {perf.get('steps_per_second', 0):.0f} | "
           f"{r['mesh']['placement']['seconds']:.1f} | {r['driven']['cell_velocity_m_per_s'] * 100:.4f} | {threads} |")
 PY
