@@ -2,9 +2,10 @@
 # The capillary validation (docs/validation.md §6, "The cell in the capillary"): the paper's
 # protocol at 1 mm/s with the Fig. 3 shapes and the recovery against Hochmuth 1979, a sweep of
 # velocities against Hochmuth 1970 (cell length) and Lanotte 2014 (deformation index),
-# N = 500 against N = 5000, and Tomaiuolo 2009's narrow tubes (velocity against pressure
-# gradient at 4.7 and 6.6 µm; four ignored tests in tests/capillary.rs). About 25 minutes on
-# 2 cores. Figures go to FIG_DIR (default: a temporary directory).
+# N = 500 against N = 5000, Tomaiuolo 2009's narrow tubes (velocity against pressure gradient
+# at 4.7 and 6.6 µm, DI at 6.6 µm, two seeds) and Hochmuth 1970's eight tubes (cell length,
+# two seeds; five ignored tests in tests/capillary.rs). About 55 minutes on 2 cores.
+# Figures go to FIG_DIR (default: a temporary directory).
 #   scripts/validate_capillary.sh [FIG_DIR]
 set -euo pipefail
 cd "$(dirname "$0")/.."

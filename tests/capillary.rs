@@ -490,9 +490,13 @@ fn analyze_reproduces_the_run_measures() {
             continue;
         };
         // cell.csv: time, stage, stage_time, cell v, fluid v, length, radius, DI, concavity,
-        // distance, area, volume, temperature; capillary.csv: step, time, stage, then the same
-        // from cell v on
+        // distance, area, volume, temperature, body force, L/W, silhouette width, silhouette
+        // DI, tilt, axis offset; capillary.csv: step, time, stage, then the same from cell v to
+        // the temperature, then silhouette width, silhouette DI, tilt
         let pairs = [
+            (15, 13),
+            (16, 14),
+            (17, 15),
             (3, 3),
             (4, 4),
             (5, 5),
@@ -564,9 +568,11 @@ fn q(r: &Value, st: &str, k: &str) -> f64 {
 /// Tomaiuolo et al. 2009's velocity against pressure gradient (4.7 and 6.6 µm glass tubes)
 /// at their conditions as the tRBC-UQ authors ran them (suspending medium 1.0 mPa·s, one cell
 /// per 50 µm of tube), with the cell length and deformation index at the same points; the
-/// cell enters face-on and is pressed into the tube. Prints the table of docs/validation.md
-/// ("Narrow tubes") and writes `capillary_tomaiuolo_velocity.png` and
-/// `capillary_narrow_length.png` into `$HEMODPD_FIGURES_DIR` when set. About 15 minutes on
+/// cell enters face-on and is pressed into the tube; two seeds per point. Prints the table of
+/// docs/validation.md ("Narrow tubes": velocity, length, DI with the width 2 max ρ and seen
+/// from the side, against Tomaiuolo's DI at 6.6 µm, the shape of each seed) and writes
+/// `capillary_tomaiuolo_velocity.png`, `capillary_narrow_length.png` and
+/// `capillary_tomaiuolo_di.png` into `$HEMODPD_FIGURES_DIR` when set. About 20 minutes on
 /// 2 cores (`scripts/validate_capillary.sh`). Asserts what the docs state: the velocity rises
 /// with the gradient, and fewer than 1 % of the particles a check tests were found on the wrong
 /// side over the run.
@@ -595,43 +601,41 @@ fn capillary_validation_tomaiuolo() {
         (6.6, "1.0", 500, [5.0, 10.0, 20.0]),
         (4.7, "0.5", 2000, [10.0, 20.0, 40.0]),
     ];
-    let mut rows = Vec::new();
+    // each point over two seeds
+    let mut runs = Vec::new();
     for (d, res, n, gradients) in cases {
         for g in gradients {
-            let st = format!("stage=[{{name = \"rest\", duration_s = 0.0001}}, {{name = \"flow\", duration_s = 0.006, pressure_gradient_mmhg_per_mm = {g}}}]");
-            let t = std::time::Instant::now();
-            let (r, _) = go(
-                work,
-                &format!("d{d}_g{g}"),
-                &[
-                    &st,
-                    &format!("tube.diameter_um={d}"),
-                    "tube.length_um=50",
-                    "plasma.viscosity_pa_s=1.0e-3",
-                    &format!("model.length_um_per_rc={res}"),
-                    &format!("cell.vertices={n}"),
-                    "output.frame_every_s=0",
-                ],
-            );
-            // fluid through the folds of the pressed cell: reported, and held below 1 % of the
-            // fluid particles each check tests near the cell, summed over the run
-            // (docs/validation.md)
-            let (misplaced, checks) = (f(&r["crossings"]["misplaced_total"]), f(&r["crossings"]["checks"]));
-            let inside = f(&r["crossings"]["checked_last"]);
-            eprintln!("  misplaced {misplaced} in {checks} checks ({inside} particles tested per check)");
-            assert!(misplaced <= 0.01 * inside, "{}", r["crossings"]);
-            rows.push((
-                d,
-                g,
-                q(&r, "flow", "cell_velocity_m_per_s") * 100.0,
-                q(&r, "flow", "fluid_mean_velocity_m_per_s") * 100.0,
-                q(&r, "flow", "axial_length_um"),
-                q(&r, "flow", "deformation_index"),
-                f(&r["unit_mapping"]["thermal_factor"]),
-                t.elapsed().as_secs_f64(),
-            ));
+            for seed in [1u64, 2] {
+                let st = format!("stage=[{{name = \"rest\", duration_s = 0.0001}}, {{name = \"flow\", duration_s = 0.006, pressure_gradient_mmhg_per_mm = {g}}}]");
+                let t = std::time::Instant::now();
+                let (r, _) = go(
+                    work,
+                    &format!("d{d}_g{g}_s{seed}"),
+                    &[
+                        &st,
+                        &format!("tube.diameter_um={d}"),
+                        "tube.length_um=50",
+                        "plasma.viscosity_pa_s=1.0e-3",
+                        &format!("model.length_um_per_rc={res}"),
+                        &format!("cell.vertices={n}"),
+                        &format!("seed={seed}"),
+                        "output.frame_every_s=0",
+                    ],
+                );
+                // fluid through the folds of the pressed cell: reported, and held below 1 % of
+                // the fluid particles each check tests near the cell, summed over the run
+                // (docs/validation.md)
+                let (misplaced, checks) = (f(&r["crossings"]["misplaced_total"]), f(&r["crossings"]["checks"]));
+                let inside = f(&r["crossings"]["checked_last"]);
+                eprintln!("  misplaced {misplaced} in {checks} checks ({inside} particles tested per check)");
+                assert!(misplaced <= 0.01 * inside, "{}", r["crossings"]);
+                runs.push(NarrowRun::new(d, g, &r, t.elapsed().as_secs_f64()));
+            }
         }
     }
+    // the two seeds of a point averaged, their shapes listed: (d, g, cell v, mean flow v,
+    // length, DI (2 max ρ), DI (side view), f, run s, shapes, |length difference|)
+    let rows: Vec<_> = runs.chunks(2).map(NarrowRun::mean_of_seeds).collect();
     // the experiment at the same gradient: linear interpolation between its nearest points
     let measured = |d: f64, g: f64| {
         let mut pts: Vec<(f64, f64)> = data
@@ -645,12 +649,19 @@ fn capillary_validation_tomaiuolo() {
             .map(|w| w[0].1 + (w[1].1 - w[0].1) * (g - w[0].0) / (w[1].0 - w[0].0))
             .unwrap_or(f64::NAN)
     };
-    eprintln!("\n| D (µm) | ∇p (mmHg/mm) | cell velocity (cm/s) | Tomaiuolo 2009 (cm/s) | model/experiment | cell/mean flow | length (µm) | DI | f | run (s) |");
-    eprintln!("|---|---|---|---|---|---|---|---|---|---|");
-    for &(d, g, v, u, len, di, fth, secs) in &rows {
-        let m = measured(d, g);
+    // Tomaiuolo's DI at 6.6 µm at the model's cell velocity (linear between their points)
+    let di_ref: Vec<(f64, f64)> = reference("capillary_deformation_index_vs_velocity.csv")
+        .into_iter()
+        .filter(|r| r.0 == "Tomaiuolo2009")
+        .map(|r| (r.2, r.3))
+        .collect();
+    eprintln!("\n| D (µm) | ∇p (mmHg/mm) | cell velocity (cm/s) | Tomaiuolo 2009 (cm/s) | model/experiment | cell/mean flow | length (µm) | length, seed 1 − seed 2 (µm) | DI (2 max ρ) | DI (side view) | Tomaiuolo DI at that velocity | shape (seeds 1, 2) | f | run (s, each seed) |");
+    eprintln!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for (d, g, v, u, len, di, di_side, fth, secs, shapes, dl) in &rows {
+        let m = measured(*d, *g);
+        let di_exp = if (*d - 6.6).abs() < 0.01 { interpolate(&di_ref, *v) } else { f64::NAN };
         eprintln!(
-            "| {d} | {g} | {v:.4} | {m:.4} | {:.2} | {:.2} | {len:.2} | {di:.2} | {fth:.2} | {secs:.0} |",
+            "| {d} | {g} | {v:.4} | {m:.4} | {:.2} | {:.2} | {len:.2} | {dl:.2} | {di:.2} | {di_side:.2} | {di_exp:.2} | {shapes} | {fth:.2} | {secs:.0} |",
             v / m,
             v / u
         );
@@ -662,6 +673,8 @@ fn capillary_validation_tomaiuolo() {
             "{d} µm: velocity does not rise with the gradient: {v:?}"
         );
     }
+    // the side view is never wider than 2 max ρ, so its DI is never below the other
+    assert!(rows.iter().all(|r| r.6 >= r.5 * 0.999), "side-view DI below 2 max ρ DI");
     if let Some(dir) = &figs {
         let mut series = Vec::new();
         for d in [4.7, 6.6] {
@@ -717,7 +730,178 @@ fn capillary_validation_tomaiuolo() {
             &series,
         )
         .unwrap();
+        let at = |d: f64, k: fn(&NarrowRun) -> f64| -> Vec<(f64, f64)> {
+            runs.iter().filter(|r| r.d == d).map(|r| (r.v, k(r))).collect()
+        };
+        line_chart(
+            dir.join("capillary_tomaiuolo_di.png"),
+            "Deformation index at 6.6 µm (each seed)",
+            "cell velocity (cm/s)",
+            "DI = length / width",
+            &[
+                Series::points("this model, side view (mean over views)", at(6.6, |r| r.di_side)),
+                Series::points("this model, width 2 max ρ", at(6.6, |r| r.di)),
+                Series::points("Tomaiuolo 2009, D = 6.6 µm", di_ref.clone()),
+            ],
+        )
+        .unwrap();
     }
+}
+
+/// y at x on the polyline `pts` (sorted by x), linear between its points; NaN outside.
+fn interpolate(pts: &[(f64, f64)], x: f64) -> f64 {
+    pts.windows(2)
+        .find(|w| w[0].0 <= x && x <= w[1].0)
+        .map(|w| w[0].1 + (w[1].1 - w[0].1) * (x - w[0].0) / (w[1].0 - w[0].0))
+        .unwrap_or(f64::NAN)
+}
+
+/// One run of the narrow-tube validations: the flow stage's final-quarter means.
+struct NarrowRun {
+    /// Tube diameter, µm.
+    d: f64,
+    /// The drive: pressure gradient (mmHg/mm) or mean velocity (mm/s), as the caller sets it.
+    g: f64,
+    /// Cell and mean-flow velocity, cm/s.
+    v: f64,
+    u: f64,
+    /// Axial length, µm; DI with the width 2 max ρ and seen from the side.
+    length: f64,
+    di: f64,
+    di_side: f64,
+    shape: String,
+    thermal: f64,
+    secs: f64,
+}
+
+impl NarrowRun {
+    fn new(d: f64, g: f64, r: &Value, secs: f64) -> Self {
+        let fl = &stage(r, "flow")["final_quarter_means"];
+        NarrowRun {
+            d,
+            g,
+            v: f(&fl["cell_velocity_m_per_s"]) * 100.0,
+            u: f(&fl["fluid_mean_velocity_m_per_s"]) * 100.0,
+            length: f(&fl["axial_length_um"]),
+            di: f(&fl["deformation_index"]),
+            di_side: f(&fl["silhouette_deformation_index"]),
+            shape: fl["shape"].as_str().unwrap_or("?").to_string(),
+            thermal: f(&r["unit_mapping"]["thermal_factor"]),
+            secs,
+        }
+    }
+
+    /// The mean of two seeds of one point: (d, g, v, u, length, DI, side DI, f, s, shapes,
+    /// |seed 1 − seed 2| of the length).
+    #[allow(clippy::type_complexity)]
+    fn mean_of_seeds(pair: &[NarrowRun]) -> (f64, f64, f64, f64, f64, f64, f64, f64, f64, String, f64) {
+        let m = |k: fn(&NarrowRun) -> f64| pair.iter().map(k).sum::<f64>() / pair.len() as f64;
+        (
+            pair[0].d,
+            pair[0].g,
+            m(|r| r.v),
+            m(|r| r.u),
+            m(|r| r.length),
+            m(|r| r.di),
+            m(|r| r.di_side),
+            pair[0].thermal,
+            m(|r| r.secs),
+            pair.iter().map(|r| r.shape.as_str()).collect::<Vec<_>>().join(", "),
+            pair.iter().map(|r| r.length).fold(f64::NEG_INFINITY, f64::max)
+                - pair.iter().map(|r| r.length).fold(f64::INFINITY, f64::min),
+        )
+    }
+}
+
+/// Hochmuth, Marple & Sutera 1970's eight tubes (4.5–10.7 µm): the cell's length, the quantity
+/// they measured, at a mean flow of 3 mm/s (cells at 0.3–0.45 cm/s, inside the velocity range
+/// of their cells in every tube), two seeds each, with `scenarios/capillary-tomaiuolo.toml`'s
+/// conditions (1.0 mPa·s, a 50 µm tube, the cell entering face-on and pressed into tubes
+/// narrower than it). 4.5 µm at 0.5 µm per rc with N = 2000 (the least tube at 1 µm per rc is
+/// 4.8 µm), the others at 1 µm per rc with N = 500. Prints the table of docs/validation.md
+/// ("Hochmuth 1970's tubes"): the model's length beside the mean and SD of their cells' lengths
+/// in the same tube within a factor of two of the model's velocity; writes
+/// `capillary_hochmuth_length.png` into `$HEMODPD_FIGURES_DIR` when set. ≈ 20 minutes on 2
+/// cores. Asserts what the docs state: the cell is longer in the narrowest tube than in the
+/// widest, and fewer than 1 % of the particles a check tests were on the wrong side.
+#[test]
+#[ignore]
+fn capillary_validation_hochmuth() {
+    use hemodpd_io::plot::{line_chart, Series};
+    let (figs, work) = validation_setup();
+    let work = work.path();
+    let length_ref: Vec<(f64, f64, f64)> = reference("capillary_cell_length_vs_velocity.csv")
+        .into_iter()
+        .filter(|r| r.0 == "Hochmuth1970")
+        .map(|r| (r.1, r.2, r.3))
+        .collect();
+    let mean_velocity_mm_s = 3.0;
+    let mut runs = Vec::new();
+    for d in [4.5, 6.2, 6.7, 7.6, 8.0, 8.5, 9.7, 10.7] {
+        let (res, n) = if d < 4.8 { ("0.5", 2000) } else { ("1.0", 500) };
+        for seed in [1u64, 2] {
+            let st = format!("stage=[{{name = \"rest\", duration_s = 0.0001}}, {{name = \"flow\", duration_s = 0.006, mean_velocity_m_per_s = {}}}]", mean_velocity_mm_s * 1e-3);
+            let t = std::time::Instant::now();
+            let (r, _) = go(
+                work,
+                &format!("d{d}_s{seed}"),
+                &[
+                    &st,
+                    &format!("tube.diameter_um={d}"),
+                    "tube.length_um=50",
+                    "plasma.viscosity_pa_s=1.0e-3",
+                    &format!("model.length_um_per_rc={res}"),
+                    &format!("cell.vertices={n}"),
+                    &format!("seed={seed}"),
+                    "output.frame_every_s=0",
+                ],
+            );
+            let misplaced = f(&r["crossings"]["misplaced_total"]);
+            assert!(misplaced <= 0.01 * f(&r["crossings"]["checked_last"]), "{}", r["crossings"]);
+            runs.push(NarrowRun::new(d, mean_velocity_mm_s, &r, t.elapsed().as_secs_f64()));
+        }
+    }
+    let rows: Vec<_> = runs.chunks(2).map(NarrowRun::mean_of_seeds).collect();
+    eprintln!("\n| D (µm) | cell velocity (cm/s) | length (µm) | length, seed 1 − seed 2 (µm) | DI (side view) | shape (seeds 1, 2) | Hochmuth 1970: cells within ×2 of the velocity | their length (µm), mean ± SD | model − experiment | f | run (s, each seed) |");
+    eprintln!("|---|---|---|---|---|---|---|---|---|---|---|");
+    for (d, _, v, _, len, _, di_side, fth, secs, shapes, dl) in &rows {
+        let near: Vec<f64> = length_ref
+            .iter()
+            .filter(|r| (r.0 - d).abs() < 0.01 && r.1 >= 0.5 * v && r.1 <= 2.0 * v)
+            .map(|r| r.2)
+            .collect();
+        let (m, sd) = if near.len() > 1 { mean_sd(&near) } else { (f64::NAN, f64::NAN) };
+        eprintln!(
+            "| {d} | {v:.3} | {len:.2} | {dl:.2} | {di_side:.2} | {shapes} | {} | {m:.2} ± {sd:.2} | {:+.0} % | {fth:.1} | {secs:.0} |",
+            near.len(),
+            100.0 * (len / m - 1.0)
+        );
+    }
+    let (first, last) = (&rows[0], &rows[rows.len() - 1]);
+    assert!(first.4 > last.4, "length at 4.5 µm {} not above 10.7 µm {}", first.4, last.4);
+    if let Some(dir) = &figs {
+        line_chart(
+            dir.join("capillary_hochmuth_length.png"),
+            "Cell length against tube diameter (model: mean flow 3 mm/s)",
+            "tube diameter (µm)",
+            "axial length (µm)",
+            &[
+                Series::points("this model (each seed)", runs.iter().map(|r| (r.d, r.length)).collect()),
+                Series::points(
+                    "Hochmuth 1970 (every cell, 0.03–1.9 cm/s)",
+                    length_ref.iter().map(|r| (r.0, r.2)).collect(),
+                ),
+            ],
+        )
+        .unwrap();
+    }
+}
+
+/// Mean and sample standard deviation.
+fn mean_sd(x: &[f64]) -> (f64, f64) {
+    let n = x.len() as f64;
+    let m = x.iter().sum::<f64>() / n;
+    (m, (x.iter().map(|e| (e - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt())
 }
 
 /// The validation behind docs/validation.md ("Capillary"), part 1 of 3 (all three:

@@ -510,3 +510,97 @@ fn viscosity_dense_long() {
         "measured {a} ± {sa}, DENSE_FLUID_VISCOSITY = {DENSE_FLUID_VISCOSITY}"
     );
 }
+
+/// The cytosol at the physiological viscosity ratio λ = 5: the outer fluid with γ × λ (what
+/// `hemodpd_scenario::cell` builds for the inner fluid) at the step the scenario's fluid chooser
+/// gives it, Δt = (validated γΔt limit)/(λγ) (`FluidModel::default_timestep`: 0.48/600 = 0.0008
+/// for the capillary fluid, 0.123/205 = 0.0006 for the dense one), started from the profile of
+/// λ × the outer fluid's measured η. The drive is λ × the outer one's, so the profile has the
+/// same amplitude (Mach) as the outer fluid's measurement.
+fn cytosol(outer: RpFluid, lambda: f64, friction_limit: f64, eta_outer: f64) -> RpFluid {
+    let pair = PairParams {
+        gamma: outer.pair.gamma * lambda,
+        ..outer.pair
+    };
+    RpFluid {
+        pair,
+        dt: friction_limit / pair.gamma,
+        eta_guess: lambda * eta_outer,
+        ..outer
+    }
+}
+
+/// Largest γΔt of the capillary fluid's time-step scan that kept kBT within 0.5 %
+/// (`FluidModel::table()`'s `friction_step_limit`, docs/units.md "The cytosol").
+const CAPILLARY_FRICTION_LIMIT: f64 = 0.48;
+
+/// Quick check of λ = 5 for the capillary fluid: the cytosol's η over the outer fluid's
+/// measured [`CAPILLARY_FLUID_VISCOSITY`] must be 5 within 4 %: four SD of this run's mean of
+/// two halves (the outer fluid's SD per half, 1.4 % at 60 000 steps of Δt = 0.0025, scaled to
+/// the 150 000 steps of Δt = 0.0008 here, 120 time units against 150: 1.6 %, /√2 for the two
+/// halves: 1.1 %), and the halves within 4 SD of each other. A cytosol whose η did not scale
+/// with γ (a wrong σ at the reduced step, a step-dependent friction) misses by more: the
+/// conservative and kinetic parts do not scale with γ, and the explicit friction's error grows
+/// with γΔt. ≈ 40 s in release.
+#[test]
+fn viscosity_cytosol_lambda5_quick() {
+    let fluid = cytosol(RpFluid::capillary(), 5.0, CAPILLARY_FRICTION_LIMIT, CAPILLARY_FLUID_VISCOSITY);
+    assert!((fluid.dt - 0.0008).abs() < 1e-12);
+    let r = reverse_poiseuille(&fluid, 6.0, 16.0, 5.0 * CAPILLARY_G, 5000, 150_000, 5, 11);
+    let [e1, e2] = r.interior;
+    let ratio = 0.5 * (e1 + e2) / CAPILLARY_FLUID_VISCOSITY;
+    eprintln!(
+        "λ = 5 cytosol (capillary fluid, γ = {}, Δt = {}): interior η = {e1:.2}, {e2:.2}, ratio to the outer fluid's {CAPILLARY_FLUID_VISCOSITY} = {ratio:.4}; kBT_pec = {:.4}",
+        fluid.pair.gamma, fluid.dt, r.peculiar_kbt
+    );
+    let rel_sd_half = 0.016;
+    assert!(
+        (e1 - e2).abs() < 4.0 * rel_sd_half * 2f64.sqrt() * 0.5 * (e1 + e2),
+        "halves {e1} {e2}"
+    );
+    assert!((ratio / 5.0 - 1.0).abs() < 4.0 * rel_sd_half / 2f64.sqrt() + 0.01, "λ_measured = {ratio}");
+    assert!((r.peculiar_kbt - 1.0).abs() < 0.01, "kBT {}", r.peculiar_kbt);
+}
+
+/// The measurement behind docs/units.md's λ = 5 validation: the capillary fluid's cytosol
+/// (γ = 600, Δt = 0.0008; 4 seeds × 2 halves of 150 000 steps) and the dense fluid's (γ = 205,
+/// Δt = 0.0006; 2 seeds × 2 halves of 120 000 steps), each against its outer fluid's measured η.
+/// Prints λ_measured = η_in/η_out ± SE and asserts it within 3 SE + 1 % of 5 (≈ 15 min on 2
+/// cores in release).
+#[test]
+#[ignore]
+fn viscosity_cytosol_lambda5_long() {
+    let cases = [
+        (
+            "capillary",
+            cytosol(RpFluid::capillary(), 5.0, CAPILLARY_FRICTION_LIMIT, CAPILLARY_FLUID_VISCOSITY),
+            5.0 * CAPILLARY_G,
+            CAPILLARY_FLUID_VISCOSITY,
+            &[1u64, 2, 3, 4][..],
+            150_000u64,
+        ),
+        (
+            "dense",
+            cytosol(RpFluid::dense(), 5.0, DENSE_FLUID_TIMESTEP * PairParams::dense().gamma, DENSE_FLUID_VISCOSITY),
+            5.0 * DENSE_G,
+            DENSE_FLUID_VISCOSITY,
+            &[1u64, 2][..],
+            120_000u64,
+        ),
+    ];
+    for (name, fluid, g, eta_out, seeds, steps) in cases {
+        let mut interior = Vec::new();
+        for &seed in seeds {
+            let r = reverse_poiseuille(&fluid, 6.0, 16.0, g, 5000, steps, 5, seed);
+            eprintln!(
+                "{name} cytosol λ = 5 (γ = {}, Δt = {:.5}), seed {seed}: interior η = {:.2} {:.2}, kBT_pec = {:.4}",
+                fluid.pair.gamma, fluid.dt, r.interior[0], r.interior[1], r.peculiar_kbt
+            );
+            interior.extend(r.interior);
+        }
+        let (i, ise) = mean_se(&interior);
+        let (lam, lse) = (i / eta_out, ise / eta_out);
+        eprintln!("SUMMARY {name} cytosol: η_in = {i:.2} ± {ise:.2}, λ_measured = η_in/η_out = {lam:.3} ± {lse:.3}");
+        assert!((lam - 5.0).abs() < 3.0 * lse + 0.05, "{name}: λ_measured = {lam} ± {lse}");
+    }
+}

@@ -8,6 +8,19 @@
 //! * maximum radial extent: max ρ, and the width 2·max ρ;
 //! * deformation index DI = axial length / width (Tomaiuolo et al. 2009 define DI as the cell's
 //!   length over its width in the capillary image, which is this for an axisymmetric cell);
+//! * silhouette width: the width of the cell's image seen from the side, as through a
+//!   microscope: the extent of the vertices across the axis along a direction u ⊥ axis,
+//!   averaged over [`SILHOUETTE_VIEWS`] viewing directions evenly spaced about the axis (the
+//!   experiments see each cell from one side, at a random angle about the tube); never more
+//!   than 2·max ρ, equal to it for an axisymmetric cell. The silhouette DI = axial length /
+//!   silhouette width;
+//! * cross-section roundness: √(λmin/λmax) of the vertices' 2×2 covariance across the axis:
+//!   1 for a cell that is round seen along the tube (a face-on disc, an axisymmetric parachute
+//!   or bullet), ≈ thickness/diameter for an edge-on disc, in between for a folded or slipper
+//!   cell;
+//! * symmetry-axis tilt: the angle (degrees, 0–90) between the cell's own symmetry axis (below)
+//!   and the tube axis: ≈ 0 for a face-on disc or an axisymmetric parachute, ≈ 90 for an edge-on
+//!   disc, in between for a tilted cup (a slipper);
 //! * parachute concavity depth: the mean y of the rear vertices near the axis (ρ < 0.3 max ρ,
 //!   y < 0) minus the rearmost y. At rest (biconcave, axis along the tube) it is the dimple,
 //!   ≈ 0.85 µm for the healthy cell; a parachute deepens it;
@@ -78,6 +91,58 @@ pub struct ShapeMetrics {
     pub concavity_depth: f64,
     /// RMS distance from the resting profile.
     pub distance_from_rest: f64,
+    /// Width of the side view, averaged over the viewing directions about the axis.
+    #[serde(default)]
+    pub silhouette_width: f64,
+    /// axial length / silhouette width.
+    #[serde(default)]
+    pub silhouette_deformation_index: f64,
+    /// Angle between the cell's own symmetry axis and the tube axis, degrees (0–90).
+    #[serde(default)]
+    pub symmetry_axis_tilt_deg: f64,
+    /// √(λmin/λmax) of the covariance across the axis (1: round seen along the tube).
+    #[serde(default)]
+    pub cross_section_roundness: f64,
+}
+
+/// √(λmin/λmax) of the 2×2 covariance of `x` about `c` in the plane across `axis`.
+pub fn cross_section_roundness(x: &[DVec3], c: DVec3, axis: usize) -> f64 {
+    let (a1, a2) = ((axis + 1) % 3, (axis + 2) % 3);
+    let (mut s11, mut s22, mut s12) = (0.0, 0.0, 0.0);
+    for p in x {
+        let (u, v) = (p[a1] - c[a1], p[a2] - c[a2]);
+        s11 += u * u;
+        s22 += v * v;
+        s12 += u * v;
+    }
+    let mean = 0.5 * (s11 + s22);
+    let dev = (0.25 * (s11 - s22).powi(2) + s12 * s12).sqrt();
+    let (lo, hi) = (mean - dev, mean + dev);
+    if hi > 0.0 {
+        (lo.max(0.0) / hi).sqrt()
+    } else {
+        f64::NAN
+    }
+}
+
+/// Viewing directions about the tube axis over which the silhouette width is averaged (every
+/// 5°; the extent along u and −u is the same, so 36 cover the half-turn).
+pub const SILHOUETTE_VIEWS: usize = 36;
+
+/// The side view's width of `x` across `axis`, averaged over [`SILHOUETTE_VIEWS`] directions.
+pub fn silhouette_width(x: &[DVec3], axis: usize) -> f64 {
+    let (a1, a2) = ((axis + 1) % 3, (axis + 2) % 3);
+    let mut sum = 0.0;
+    for k in 0..SILHOUETTE_VIEWS {
+        let phi = std::f64::consts::PI * k as f64 / SILHOUETTE_VIEWS as f64;
+        let (c, s) = (phi.cos(), phi.sin());
+        let (lo, hi) = x.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+            let u = c * p[a1] + s * p[a2];
+            (lo.min(u), hi.max(u))
+        });
+        sum += (hi - lo).max(0.0);
+    }
+    sum / SILHOUETTE_VIEWS as f64
 }
 
 /// Unit eigenvector of the smallest eigenvalue of the symmetric matrix `m` (cyclic Jacobi).
@@ -172,6 +237,7 @@ pub fn metrics(x: &[DVec3], axis: usize, rest: &RestProfile) -> ShapeMetrics {
         0.0
     };
     let length = ymax - ymin;
+    let width = silhouette_width(x, axis);
     ShapeMetrics {
         centroid: c.to_array(),
         axial_length: length,
@@ -179,6 +245,10 @@ pub fn metrics(x: &[DVec3], axis: usize, rest: &RestProfile) -> ShapeMetrics {
         deformation_index: if rmax > 0.0 { length / (2.0 * rmax) } else { f64::NAN },
         concavity_depth: concavity,
         distance_from_rest: (sq / n).sqrt(),
+        silhouette_width: width,
+        silhouette_deformation_index: if width > 0.0 { length / width } else { f64::NAN },
+        symmetry_axis_tilt_deg: own[axis].abs().min(1.0).acos().to_degrees(),
+        cross_section_roundness: cross_section_roundness(x, c, axis),
     }
 }
 
@@ -226,5 +296,46 @@ mod tests {
         let tilted: Vec<DVec3> = x.iter().map(|p| c + rot * (*p - c)).collect();
         let m3 = metrics(&tilted, 2, &rest);
         assert!(m3.distance_from_rest < 2e-3, "{m3:?}");
+        assert!((m3.symmetry_axis_tilt_deg - 20.0).abs() < 0.01, "{m3:?}");
+        // the face-on disc is seen 2R wide from every side (the rings' polygon, 24 points,
+        // loses at most 1 − cos(7.5°) of it), and tilts by 0°
+        assert!(m.symmetry_axis_tilt_deg < 0.01, "{m:?}");
+        assert!((m.cross_section_roundness - 1.0).abs() < 1e-9, "{m:?}");
+        assert!((m.silhouette_width / (2.0 * s.r) - 1.0).abs() < 0.01, "{m:?}");
+        assert!((m.silhouette_deformation_index - m.deformation_index).abs() < 0.01 * m.deformation_index);
+    }
+
+    /// An edge-on ellipse-like cell: the silhouette width is the mean over the views of the
+    /// caliper width of an ellipse with semi-axes a, b across the axis, which is below the
+    /// 2·max ρ of `deformation_index`; checked against the ellipse's exact mean caliper
+    /// width, (1/π)∫ 2√(a² cos²φ + b² sin²φ) dφ, by quadrature.
+    #[test]
+    fn silhouette_of_a_flat_cell_seen_from_the_side() {
+        let (a, b) = (3.9, 1.2);
+        let mut x = Vec::new();
+        for k in 0..720 {
+            let t = std::f64::consts::TAU * k as f64 / 720.0;
+            for z in [-2.0, 0.0, 2.0] {
+                x.push(DVec3::new(a * t.cos(), b * t.sin(), z));
+            }
+        }
+        let w = silhouette_width(&x, 2);
+        let m = 20_000;
+        let exact = (0..m)
+            .map(|k| {
+                let phi = std::f64::consts::PI * (k as f64 + 0.5) / m as f64;
+                2.0 * (a * a * phi.cos().powi(2) + b * b * phi.sin().powi(2)).sqrt()
+            })
+            .sum::<f64>()
+            / m as f64;
+        assert!((w / exact - 1.0).abs() < 2e-3, "{w} vs {exact}");
+        // a uniform ring of points on the ellipse: covariance ∝ a², b², roundness b/a
+        let c = x.iter().fold(DVec3::ZERO, |s, p| s + *p) / x.len() as f64;
+        assert!((cross_section_roundness(&x, c, 2) - b / a).abs() < 1e-6);
+        assert!(w < 2.0 * a * 0.8);
+        // rotating the cell about the axis changes nothing beyond the 5° sampling of the views
+        let rot = glam::DQuat::from_rotation_z(0.3);
+        let w2 = silhouette_width(&x.iter().map(|p| rot * *p).collect::<Vec<_>>(), 2);
+        assert!((w2 / w - 1.0).abs() < 5e-3, "{w2} vs {w}");
     }
 }

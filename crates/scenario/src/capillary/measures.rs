@@ -33,6 +33,40 @@ pub fn length_over_width(x: &[DVec3]) -> f64 {
     l.max(w) / l.min(w)
 }
 
+/// The shape a driven cell settles in, from its final-quarter means (docs/capillary.md, "The
+/// measures"): `"disc"` when it is still within [`DISC_DISTANCE_UM`] of its resting shape (a
+/// slow cell that kept the pose it entered with); else `"slipper"` when its centroid is off the
+/// tube axis by at least [`SLIPPER_OFFSET`] of the tube radius; on the axis, `"parachute"` when
+/// it is round seen along the tube (cross-section roundness ≥ [`PARACHUTE_ROUNDNESS`]) and
+/// `"croissant"` (folded, two-fold rather than axisymmetric) when it is not. The names follow
+/// Fedosov et al. (Soft Matter 2014) and Guckenberger et al. (Soft Matter 2018); the
+/// thresholds are ours.
+pub fn shape_class(axis_offset: f64, tube_radius: f64, roundness: f64, distance_from_rest_um: f64) -> &'static str {
+    if !(axis_offset.is_finite() && roundness.is_finite() && distance_from_rest_um.is_finite() && tube_radius > 0.0) {
+        "unknown"
+    } else if distance_from_rest_um < DISC_DISTANCE_UM {
+        "disc"
+    } else if axis_offset >= SLIPPER_OFFSET * tube_radius {
+        "slipper"
+    } else if roundness >= PARACHUTE_ROUNDNESS {
+        "parachute"
+    } else {
+        "croissant"
+    }
+}
+
+/// RMS distance from the resting shape (µm) below which a driven cell is still a disc: about
+/// twice the thermal roughness of the N = 500 cell at rest at f = 10.8 (0.084 µm; 0.050 at
+/// f = 1); an edge-on cell at 0.2 mm/s in the 10 µm tube stays at 0.13 µm.
+pub const DISC_DISTANCE_UM: f64 = 0.2;
+
+/// Off-axis distance of the centroid, as a fraction of the tube radius, from which a cell is a
+/// slipper (thermal wandering of an axisymmetric parachute stays below it: ≈ 0.02–0.06 R).
+pub const SLIPPER_OFFSET: f64 = 0.1;
+
+/// Cross-section roundness from which an on-axis cell counts as an axisymmetric parachute.
+pub const PARACHUTE_ROUNDNESS: f64 = 0.9;
+
 /// A fit of Hochmuth's Kelvin–Voigt recovery to L/W = λ(t):
 /// ((λ² − λ∞²)(λ0² + λ∞²)) / ((λ² + λ∞²)(λ0² − λ∞²)) = exp(−t/t_c).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
@@ -161,6 +195,9 @@ pub struct FrameMeasures {
     pub area_deviation: f64,
     pub volume_deviation: f64,
     pub membrane_temperature_ratio: f64,
+    pub silhouette_width_um: f64,
+    pub silhouette_deformation_index: f64,
+    pub symmetry_axis_tilt_deg: f64,
 }
 
 /// Computes [`FrameMeasures`] for every membrane frame of a capillary trajectory (the same
@@ -214,6 +251,9 @@ pub fn analyze_trajectory(path: &std::path::Path) -> Result<Vec<FrameMeasures>, 
             area_deviation: a / a0 - 1.0,
             volume_deviation: v / v0 - 1.0,
             membrane_temperature_ratio: kbt,
+            silhouette_width_um: m.silhouette_width,
+            silhouette_deformation_index: m.silhouette_deformation_index,
+            symmetry_axis_tilt_deg: m.symmetry_axis_tilt_deg,
         });
     }
     Ok(out)
@@ -221,10 +261,10 @@ pub fn analyze_trajectory(path: &std::path::Path) -> Result<Vec<FrameMeasures>, 
 
 /// Writes [`FrameMeasures`] as CSV.
 pub fn write_measures_csv(path: &std::path::Path, rows: &[FrameMeasures]) -> Result<(), RunError> {
-    let mut s = String::from("step,time_s,stage,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio\n");
+    let mut s = String::from("step,time_s,stage,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio,silhouette_width_um,silhouette_deformation_index,symmetry_axis_tilt_deg\n");
     for r in rows {
         s += &format!(
-            "{},{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
+            "{},{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
             r.step,
             r.time_s,
             r.stage,
@@ -237,11 +277,33 @@ pub fn write_measures_csv(path: &std::path::Path, rows: &[FrameMeasures]) -> Res
             r.distance_from_rest_um,
             r.area_deviation,
             r.volume_deviation,
-            r.membrane_temperature_ratio
+            r.membrane_temperature_ratio,
+            r.silhouette_width_um,
+            r.silhouette_deformation_index,
+            r.symmetry_axis_tilt_deg
         );
     }
     std::fs::write(path, s).map_err(|source| RunError::Io {
         path: path.to_path_buf(),
         source,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each class at a point just inside its bounds, and the order of the tests: a barely
+    /// deformed cell is a disc wherever it sits; off the axis beats roundness.
+    #[test]
+    fn shape_classes() {
+        let r = 5.0;
+        assert_eq!(shape_class(0.02 * r, r, 0.42, 0.13), "disc");
+        assert_eq!(shape_class(0.3 * r, r, 0.99, 0.19), "disc");
+        assert_eq!(shape_class(0.04 * r, r, 0.98, 0.6), "parachute");
+        assert_eq!(shape_class(0.04 * r, r, 0.8, 0.6), "croissant");
+        assert_eq!(shape_class(0.1 * r, r, 0.98, 0.6), "slipper");
+        assert_eq!(shape_class(f64::NAN, r, 0.98, 0.6), "unknown");
+        assert_eq!(shape_class(0.0, 0.0, 0.98, 0.6), "unknown");
+    }
 }

@@ -12,7 +12,8 @@
 
 mod measures;
 pub use measures::{
-    analyze_trajectory, decay_time, fit_hochmuth, length_over_width, write_measures_csv, FrameMeasures, HochmuthFit,
+    analyze_trajectory, decay_time, fit_hochmuth, length_over_width, shape_class, write_measures_csv, FrameMeasures,
+    HochmuthFit, DISC_DISTANCE_UM, PARACHUTE_ROUNDNESS, SLIPPER_OFFSET,
 };
 
 use crate::cell::build::{
@@ -517,9 +518,9 @@ impl<'a> Plan<'a> {
         let (mut mesh, info) = self.mesh_um()?;
         let scale = 1e-6 / self.map.length_m;
         let c = self.cell_centre();
-        let (o, seed) = (self.s.tube.cell_orientation, self.s.seed);
+        let turn = self.s.tube.cell_orientation.turn(self.s.seed);
         for v in mesh.vertices.iter_mut() {
-            *v = o.turn(*v, seed) * scale + c;
+            *v = turn(*v) * scale + c;
         }
         Ok((mesh, info))
     }
@@ -676,6 +677,9 @@ pub struct Sample {
     /// In-plane length over width of the cell, L/W ([`length_over_width`]).
     #[serde(default)]
     pub length_over_width: f64,
+    /// Distance of the cell's centroid from the tube axis.
+    #[serde(default)]
+    pub axis_offset: f64,
 }
 
 fn observe(
@@ -704,11 +708,14 @@ fn observe(
     }
     let model = cell.model();
     let (a, vol) = model.area_volume(x).unwrap_or((f64::NAN, f64::NAN));
+    let shape = cellshape::metrics(x, AXIS, rest);
+    let axis = plan.cell_centre();
     Sample {
         step: sim.step_count(),
         stage,
         stage_time,
-        shape: cellshape::metrics(x, AXIS, rest),
+        axis_offset: (shape.centroid[0] - axis.x).hypot(shape.centroid[1] - axis.y),
+        shape,
         length_over_width: length_over_width(x),
         cell_velocity: vmean[AXIS],
         fluid_velocity: flux_velocity(plan, sum / count.max(1) as f64),
@@ -1124,11 +1131,11 @@ fn write_time_series(run: &Run, ctx: &RunContext) -> Result<(), RunError> {
     let (l, v, t) = (m.length_m * 1e6, m.velocity_to_si(1.0), m.time_s);
     let fluid_kbt = plan.fluid.pair.kbt;
     let mut csv = String::from(
-        "time_s,stage,stage_time_s,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio,body_force_n,length_over_width\n",
+        "time_s,stage,stage_time_s,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio,body_force_n,length_over_width,silhouette_width_um,silhouette_deformation_index,symmetry_axis_tilt_deg,axis_offset_um,cross_section_roundness\n",
     );
     for s in &run.st.samples {
         csv += &format!(
-            "{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
+            "{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
             s.step as f64 * plan.dt * t,
             s.stage,
             s.stage_time * t,
@@ -1144,6 +1151,11 @@ fn write_time_series(run: &Run, ctx: &RunContext) -> Result<(), RunError> {
             s.membrane_kbt / fluid_kbt,
             s.body_force * m.force_unit_n(),
             s.length_over_width,
+            s.shape.silhouette_width * l,
+            s.shape.silhouette_deformation_index,
+            s.shape.symmetry_axis_tilt_deg,
+            s.axis_offset * l,
+            s.shape.cross_section_roundness,
         );
     }
     let path = ctx.out_dir.join("cell.csv");
@@ -1171,6 +1183,16 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
         let (a_max, v_max) = smp.iter().fold((0.0f64, 0.0f64), |(a, b), s| {
             (a.max(s.area_deviation.abs()), b.max(s.volume_deviation.abs()))
         });
+        let shape = if st.drive() == Drive::Off {
+            "rest"
+        } else {
+            shape_class(
+                tail_mean(&smp, |s| s.axis_offset),
+                plan.radius,
+                tail_mean(&smp, |s| s.shape.cross_section_roundness),
+                tail_mean(&smp, |s| s.shape.distance_from_rest) * l,
+            )
+        };
         stages.push(json!({
             "name": st.name,
             "duration_s": steps as f64 * plan.dt * t,
@@ -1186,6 +1208,12 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
                 "axial_length_um": tail_mean(&smp, |s| s.shape.axial_length) * l,
                 "max_radial_extent_um": tail_mean(&smp, |s| s.shape.max_radius) * l,
                 "deformation_index": tail_mean(&smp, |s| s.shape.deformation_index),
+                "silhouette_width_um": tail_mean(&smp, |s| s.shape.silhouette_width) * l,
+                "silhouette_deformation_index": tail_mean(&smp, |s| s.shape.silhouette_deformation_index),
+                "symmetry_axis_tilt_deg": tail_mean(&smp, |s| s.shape.symmetry_axis_tilt_deg),
+                "axis_offset_um": tail_mean(&smp, |s| s.axis_offset) * l,
+                "cross_section_roundness": tail_mean(&smp, |s| s.shape.cross_section_roundness),
+                "shape": shape,
                 "concavity_depth_um": tail_mean(&smp, |s| s.shape.concavity_depth) * l,
                 "distance_from_rest_um": tail_mean(&smp, |s| s.shape.distance_from_rest) * l,
                 "membrane_temperature_ratio": tail_mean(&smp, |s| s.membrane_kbt) / fluid_kbt,
@@ -1369,6 +1397,8 @@ impl crate::kind::Kind for CapillaryScenario {
         ("fluid velocity (m/s)", "/driven/fluid_mean_velocity_m_per_s", false),
         ("length (um)", "/driven/axial_length_um", false),
         ("DI", "/driven/deformation_index", false),
+        ("DI side view", "/driven/silhouette_deformation_index", false),
+        ("shape", "/driven/shape", false),
         ("misplaced", "/crossings/misplaced_total", false),
     ];
     fn validate(&self, file: &str) -> Result<(), ScenarioError> {

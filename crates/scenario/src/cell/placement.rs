@@ -30,13 +30,15 @@ impl CellOrientation {
         *self == CellOrientation::FaceOn
     }
 
-    /// `v` of the generated mesh (symmetry axis y) turned to this orientation about a tube
-    /// whose axis is z; face-on and edge-on exactly (a permutation, no round-off).
-    pub fn turn(&self, v: DVec3, seed: u64) -> DVec3 {
-        match self {
+    /// The map taking a point of the generated mesh (symmetry axis y) to this orientation
+    /// about a tube whose axis is z; face-on and edge-on exactly (a permutation, no round-off),
+    /// random by the seed's rotation, drawn once.
+    pub fn turn(&self, seed: u64) -> impl Fn(DVec3) -> DVec3 {
+        let (o, q) = (*self, self.rotation(seed));
+        move |v| match o {
             CellOrientation::FaceOn => DVec3::new(v.x, -v.z, v.y),
             CellOrientation::EdgeOn => v,
-            CellOrientation::Random => self.rotation(seed) * v,
+            CellOrientation::Random => q * v,
         }
     }
 
@@ -177,7 +179,7 @@ mod tests {
             CellOrientation::Random,
         ] {
             let v = DVec3::new(0.3, -1.2, 2.1);
-            assert!((o.turn(v, 7) - o.rotation(7) * v).length() < 1e-12);
+            assert!((o.turn(7)(v) - o.rotation(7) * v).length() < 1e-12);
         }
     }
 }
