@@ -606,22 +606,9 @@ fn capillary_validation_tomaiuolo() {
     for (d, res, n, gradients) in cases {
         for g in gradients {
             for seed in [1u64, 2] {
-                let st = format!("stage=[{{name = \"rest\", duration_s = 0.0001}}, {{name = \"flow\", duration_s = 0.006, pressure_gradient_mmhg_per_mm = {g}}}]");
                 let t = std::time::Instant::now();
-                let (r, _) = go(
-                    work,
-                    &format!("d{d}_g{g}_s{seed}"),
-                    &[
-                        &st,
-                        &format!("tube.diameter_um={d}"),
-                        "tube.length_um=50",
-                        "plasma.viscosity_pa_s=1.0e-3",
-                        &format!("model.length_um_per_rc={res}"),
-                        &format!("cell.vertices={n}"),
-                        &format!("seed={seed}"),
-                        "output.frame_every_s=0",
-                    ],
-                );
+                let drive = format!("pressure_gradient_mmhg_per_mm = {g}");
+                let r = narrow_tube_run(work, &format!("d{d}_g{g}_s{seed}"), d, res, n, &drive, seed);
                 // fluid through the folds of the pressed cell: reported, and held below 1 % of
                 // the fluid particles each check tests near the cell, summed over the run
                 // (docs/validation.md)
@@ -659,7 +646,11 @@ fn capillary_validation_tomaiuolo() {
     eprintln!("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
     for (d, g, v, u, len, di, di_side, fth, secs, shapes, dl) in &rows {
         let m = measured(*d, *g);
-        let di_exp = if (*d - 6.6).abs() < 0.01 { interpolate(&di_ref, *v) } else { f64::NAN };
+        let di_exp = if (*d - 6.6).abs() < 0.01 {
+            interpolate(&di_ref, *v)
+        } else {
+            f64::NAN
+        };
         eprintln!(
             "| {d} | {g} | {v:.4} | {m:.4} | {:.2} | {:.2} | {len:.2} | {dl:.2} | {di:.2} | {di_side:.2} | {di_exp:.2} | {shapes} | {fth:.2} | {secs:.0} |",
             v / m,
@@ -746,6 +737,29 @@ fn capillary_validation_tomaiuolo() {
         )
         .unwrap();
     }
+}
+
+/// One narrow-tube run at `scenarios/capillary-tomaiuolo.toml`'s conditions (1.0 mPa·s, a
+/// 50 µm tube): 0.1 ms at rest, then 6 ms with `drive` (a stage key = value), D µm, `res` µm
+/// per rc, N vertices, the seed; no frames.
+fn narrow_tube_run(work: &Path, name: &str, d: f64, res: &str, n: usize, drive: &str, seed: u64) -> Value {
+    let st =
+        format!("stage=[{{name = \"rest\", duration_s = 0.0001}}, {{name = \"flow\", duration_s = 0.006, {drive}}}]");
+    go(
+        work,
+        name,
+        &[
+            &st,
+            &format!("tube.diameter_um={d}"),
+            "tube.length_um=50",
+            "plasma.viscosity_pa_s=1.0e-3",
+            &format!("model.length_um_per_rc={res}"),
+            &format!("cell.vertices={n}"),
+            &format!("seed={seed}"),
+            "output.frame_every_s=0",
+        ],
+    )
+    .0
 }
 
 /// y at x on the polyline `pts` (sorted by x), linear between its points; NaN outside.
@@ -840,24 +854,15 @@ fn capillary_validation_hochmuth() {
     for d in [4.5, 6.2, 6.7, 7.6, 8.0, 8.5, 9.7, 10.7] {
         let (res, n) = if d < 4.8 { ("0.5", 2000) } else { ("1.0", 500) };
         for seed in [1u64, 2] {
-            let st = format!("stage=[{{name = \"rest\", duration_s = 0.0001}}, {{name = \"flow\", duration_s = 0.006, mean_velocity_m_per_s = {}}}]", mean_velocity_mm_s * 1e-3);
             let t = std::time::Instant::now();
-            let (r, _) = go(
-                work,
-                &format!("d{d}_s{seed}"),
-                &[
-                    &st,
-                    &format!("tube.diameter_um={d}"),
-                    "tube.length_um=50",
-                    "plasma.viscosity_pa_s=1.0e-3",
-                    &format!("model.length_um_per_rc={res}"),
-                    &format!("cell.vertices={n}"),
-                    &format!("seed={seed}"),
-                    "output.frame_every_s=0",
-                ],
-            );
+            let drive = format!("mean_velocity_m_per_s = {}", mean_velocity_mm_s * 1e-3);
+            let r = narrow_tube_run(work, &format!("d{d}_s{seed}"), d, res, n, &drive, seed);
             let misplaced = f(&r["crossings"]["misplaced_total"]);
-            assert!(misplaced <= 0.01 * f(&r["crossings"]["checked_last"]), "{}", r["crossings"]);
+            assert!(
+                misplaced <= 0.01 * f(&r["crossings"]["checked_last"]),
+                "{}",
+                r["crossings"]
+            );
             runs.push(NarrowRun::new(d, mean_velocity_mm_s, &r, t.elapsed().as_secs_f64()));
         }
     }
@@ -870,7 +875,11 @@ fn capillary_validation_hochmuth() {
             .filter(|r| (r.0 - d).abs() < 0.01 && r.1 >= 0.5 * v && r.1 <= 2.0 * v)
             .map(|r| r.2)
             .collect();
-        let (m, sd) = if near.len() > 1 { mean_sd(&near) } else { (f64::NAN, f64::NAN) };
+        let (m, sd) = if near.len() > 1 {
+            mean_sd(&near)
+        } else {
+            (f64::NAN, f64::NAN)
+        };
         eprintln!(
             "| {d} | {v:.3} | {len:.2} | {dl:.2} | {di_side:.2} | {shapes} | {} | {m:.2} ± {sd:.2} | {:+.0} % | {fth:.1} | {secs:.0} |",
             near.len(),
@@ -878,7 +887,12 @@ fn capillary_validation_hochmuth() {
         );
     }
     let (first, last) = (&rows[0], &rows[rows.len() - 1]);
-    assert!(first.4 > last.4, "length at 4.5 µm {} not above 10.7 µm {}", first.4, last.4);
+    assert!(
+        first.4 > last.4,
+        "length at 4.5 µm {} not above 10.7 µm {}",
+        first.4,
+        last.4
+    );
     if let Some(dir) = &figs {
         line_chart(
             dir.join("capillary_hochmuth_length.png"),

@@ -544,7 +544,12 @@ const CAPILLARY_FRICTION_LIMIT: f64 = 0.48;
 /// with γΔt. ≈ 65 s in the test profile.
 #[test]
 fn viscosity_cytosol_lambda5_quick() {
-    let fluid = cytosol(RpFluid::capillary(), 5.0, CAPILLARY_FRICTION_LIMIT, CAPILLARY_FLUID_VISCOSITY);
+    let fluid = cytosol(
+        RpFluid::capillary(),
+        5.0,
+        CAPILLARY_FRICTION_LIMIT,
+        CAPILLARY_FLUID_VISCOSITY,
+    );
     assert!((fluid.dt - 0.0008).abs() < 1e-12);
     let r = reverse_poiseuille(&fluid, 6.0, 16.0, 5.0 * CAPILLARY_G, 5000, 150_000, 5, 11);
     let [e1, e2] = r.interior;
@@ -558,7 +563,10 @@ fn viscosity_cytosol_lambda5_quick() {
         (e1 - e2).abs() < 4.0 * rel_sd_half * 2f64.sqrt() * 0.5 * (e1 + e2),
         "halves {e1} {e2}"
     );
-    assert!((ratio / 5.0 - 1.0).abs() < 4.0 * rel_sd_half / 2f64.sqrt() + 0.01, "λ_measured = {ratio}");
+    assert!(
+        (ratio / 5.0 - 1.0).abs() < 4.0 * rel_sd_half / 2f64.sqrt() + 0.01,
+        "λ_measured = {ratio}"
+    );
     // The cytosol's peculiar kBT in this flow was measured at 1.14 (the outer fluid at its
     // own step and the same profile: 0.999): at γΔt = 0.48 the explicit friction keeps the
     // temperature at rest (the time-step scan) but not under this shear. A known defect
@@ -577,7 +585,12 @@ fn viscosity_cytosol_lambda5_long() {
     let cases = [
         (
             "capillary",
-            cytosol(RpFluid::capillary(), 5.0, CAPILLARY_FRICTION_LIMIT, CAPILLARY_FLUID_VISCOSITY),
+            cytosol(
+                RpFluid::capillary(),
+                5.0,
+                CAPILLARY_FRICTION_LIMIT,
+                CAPILLARY_FLUID_VISCOSITY,
+            ),
             5.0 * CAPILLARY_G,
             CAPILLARY_FLUID_VISCOSITY,
             &[1u64, 2, 3, 4][..],
@@ -585,7 +598,12 @@ fn viscosity_cytosol_lambda5_long() {
         ),
         (
             "dense",
-            cytosol(RpFluid::dense(), 5.0, DENSE_FLUID_TIMESTEP * PairParams::dense().gamma, DENSE_FLUID_VISCOSITY),
+            cytosol(
+                RpFluid::dense(),
+                5.0,
+                DENSE_FLUID_TIMESTEP * PairParams::dense().gamma,
+                DENSE_FLUID_VISCOSITY,
+            ),
             5.0 * DENSE_G,
             DENSE_FLUID_VISCOSITY,
             &[1u64, 2][..],
@@ -605,6 +623,9 @@ fn viscosity_cytosol_lambda5_long() {
         let (i, ise) = mean_se(&interior);
         let (lam, lse) = (i / eta_out, ise / eta_out);
         eprintln!("SUMMARY {name} cytosol: η_in = {i:.2} ± {ise:.2}, λ_measured = η_in/η_out = {lam:.3} ± {lse:.3}");
-        assert!((lam - 5.0).abs() < 3.0 * lse + 0.05, "{name}: λ_measured = {lam} ± {lse}");
+        assert!(
+            (lam - 5.0).abs() < 3.0 * lse + 0.05,
+            "{name}: λ_measured = {lam} ± {lse}"
+        );
     }
 }
