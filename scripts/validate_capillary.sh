@@ -4,7 +4,7 @@
 # velocities against Hochmuth 1970 (cell length) and Lanotte 2014 (deformation index),
 # N = 500 against N = 5000, Tomaiuolo 2009's narrow tubes (velocity against pressure gradient
 # at 4.7 and 6.6 µm, DI at 6.6 µm, two seeds) and Hochmuth 1970's eight tubes (cell length,
-# two seeds; five ignored tests in tests/capillary.rs). About 55 minutes on 2 cores.
+# two seeds; five ignored tests in tests/capillary.rs). About 80 minutes on 2 cores.
 # Figures go to FIG_DIR (default: a temporary directory).
 #   scripts/validate_capillary.sh [FIG_DIR]
 set -euo pipefail

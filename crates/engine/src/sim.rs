@@ -453,11 +453,7 @@ impl<E: Extension> Simulation<E> {
             velocity: self.domain.shear_velocity(),
         });
         let (scheme, cells, sforce) = (self.config.scheme, &self.cells, &mut self.sforce);
-        let w = match &self.table {
-            DpdTable::Linear(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
-            DpdTable::Quarter(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
-            DpdTable::General(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
-        };
+        let w = pair_forces(&self.table, scheme, cells, key, sforce, virial, shear);
         // Back to storage order (a parallel gather through the inverse permutation), adding the
         // body forces on the way, and kicking if asked to.
         let (sforce, inv) = (&self.sforce, self.cells.inverse());
@@ -797,6 +793,29 @@ fn keep_awake(done: &AtomicBool, caller: Option<usize>) {
         } else {
             std::hint::spin_loop();
         }
+    }
+}
+
+/// The pair forces of whichever kernel table the run chose. Not generic, and never inlined:
+/// the pair loops are compiled once, in this crate, rather than again in every crate that
+/// instantiates a [`Simulation`] with its own [`Extension`] (at opt-level 3 generic code is
+/// not shared between crates; the kernels' loops made up most of the build time of each test
+/// binary that drives the engine).
+#[inline(never)]
+fn pair_forces(
+    table: &DpdTable,
+    scheme: crate::ForceScheme,
+    cells: &CellList,
+    key: u64,
+    sforce: &mut Vec<DVec3>,
+    virial: bool,
+    shear: Option<pairs::ShearImages>,
+) -> DMat3 {
+    match table {
+        DpdTable::Linear(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
+        DpdTable::Quarter(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
+        DpdTable::Eighth(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
+        DpdTable::General(t) => pairs::compute(scheme, cells, t, key, sforce, virial, shear),
     }
 }
 

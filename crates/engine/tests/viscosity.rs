@@ -41,7 +41,8 @@ pub struct ReversePoiseuilleResult {
     /// η of each half, fitted over the bins at least rc = 1 from the kinks, where DPD's
     /// non-local stress leaves the parabola exact.
     pub interior: [f64; 2],
-    /// Peculiar kBT against the measured profile (viscous heating check).
+    /// Peculiar kBT against the measured (binned) profile, averaged over a snapshot every 100
+    /// sampled steps (viscous heating check).
     pub peculiar_kbt: f64,
     /// The local viscosity η = σ_xz/(dv_x/dz) at every bin edge of both halves, with σ_xz
     /// from the exact momentum balance (zero at the middle of each half, σ = ∓gρ(z − z_c)),
@@ -121,6 +122,8 @@ pub fn reverse_poiseuille(
     let rho = p.len() as f64 / (lxy * lxy * lz);
     let eta0 = fluid.eta_guess;
     let a0 = rho * g / (2.0 * eta0);
+    // (each half's parabola shifted to zero mean: a jump of a0h²/3 at the kinks, which the
+    // equilibration steps smooth out before sampling; `sheared_kbt` starts on the steady profile)
     for (x, v) in p.pos.iter().zip(p.vel.iter_mut()) {
         v.x += if x.z < h {
             a0 * x.z * (h - x.z) - a0 * h * h / 6.0
@@ -133,11 +136,19 @@ pub fn reverse_poiseuille(
     sim.run(neq).unwrap();
     let nbins = (lz * 2.0).round() as usize;
     let mut prof = observe::Profile::new(sim.domain(), 2, nbins, vec![]).unwrap();
+    let bw = lz / nbins as f64;
     let mut temps = Vec::new();
     for k in 0..nsample {
         sim.step().unwrap();
         if k % every == 0 {
             prof.sample(sim.particles(), sim.field());
+        }
+        if k % 100 == 99 {
+            // against the profile sampled so far (its noise adds ~kBT/(bin particles × samples))
+            let vprof = prof.velocity();
+            temps.push(observe::peculiar_temperature(sim.particles(), sim.field(), |x| {
+                vprof[((x.z / bw) as usize).min(nbins - 1)]
+            }));
         }
     }
     let z = prof.centres();
@@ -157,12 +168,6 @@ pub fn reverse_poiseuille(
     let (z2, v2) = inner(h);
     let a1i = fit_parabola(&z1, &v1, |z| z * (h - z));
     let a2i = -fit_parabola(&z2, &v2, |z| (z - h) * (lz - z));
-    // Peculiar temperature against the measured profile (viscous heating check).
-    let bw = lz / nbins as f64;
-    let vprof = prof.velocity();
-    temps.push(observe::peculiar_temperature(sim.particles(), sim.field(), |x| {
-        vprof[((x.z / bw) as usize).min(nbins - 1)]
-    }));
     let eta = |a: f64| rho * g / (2.0 * a);
     let mut local = Vec::new();
     for e in 1..nbins {
@@ -179,7 +184,7 @@ pub fn reverse_poiseuille(
     ReversePoiseuilleResult {
         whole: [eta(a1), eta(a2)],
         interior: [eta(a1i), eta(a2i)],
-        peculiar_kbt: temps[0],
+        peculiar_kbt: mean_se(&temps).0,
         local,
     }
 }
@@ -535,13 +540,13 @@ fn cytosol(outer: RpFluid, lambda: f64, friction_limit: f64, eta_outer: f64) -> 
 const CAPILLARY_FRICTION_LIMIT: f64 = 0.48;
 
 /// Quick check of λ = 5 for the capillary fluid: the cytosol's η over the outer fluid's
-/// measured [`CAPILLARY_FLUID_VISCOSITY`] must be 5 within 4 %: four SD of this run's mean of
+/// measured [`CAPILLARY_FLUID_VISCOSITY`] must be 5 within 8 %: four SD of this run's mean of
 /// two halves (the outer fluid's SD per half, 1.4 % at 60 000 steps of Δt = 0.0025, scaled to
-/// the 150 000 steps of Δt = 0.0008 here, 120 time units against 150: 1.6 %, /√2 for the two
-/// halves: 1.1 %), and the halves within 4 SD of each other. A cytosol whose η did not scale
-/// with γ (a wrong σ at the reduced step, a step-dependent friction) misses by more: the
+/// the 60 000 steps of Δt = 0.0008 here, 48 time units against 150: 2.5 %, /√2 for the two
+/// halves: 1.8 %) plus 1 %, and the halves within 4 SD of each other. A cytosol whose η did not
+/// scale with γ (a wrong σ at the reduced step, a step-dependent friction) misses by more: the
 /// conservative and kinetic parts do not scale with γ, and the explicit friction's error grows
-/// with γΔt. ≈ 65 s in the test profile.
+/// with γΔt. `viscosity_cytosol_lambda5_long` measures the ratio to 1 %. ≈ 30 s on 2 cores.
 #[test]
 fn viscosity_cytosol_lambda5_quick() {
     let fluid = cytosol(
@@ -551,14 +556,14 @@ fn viscosity_cytosol_lambda5_quick() {
         CAPILLARY_FLUID_VISCOSITY,
     );
     assert!((fluid.dt - 0.0008).abs() < 1e-12);
-    let r = reverse_poiseuille(&fluid, 6.0, 16.0, 5.0 * CAPILLARY_G, 5000, 150_000, 5, 11);
+    let r = reverse_poiseuille(&fluid, 6.0, 16.0, 5.0 * CAPILLARY_G, 5000, 60_000, 5, 11);
     let [e1, e2] = r.interior;
     let ratio = 0.5 * (e1 + e2) / CAPILLARY_FLUID_VISCOSITY;
     eprintln!(
         "λ = 5 cytosol (capillary fluid, γ = {}, Δt = {}): interior η = {e1:.2}, {e2:.2}, ratio to the outer fluid's {CAPILLARY_FLUID_VISCOSITY} = {ratio:.4}; kBT_pec = {:.4}",
         fluid.pair.gamma, fluid.dt, r.peculiar_kbt
     );
-    let rel_sd_half = 0.016;
+    let rel_sd_half = 0.025;
     assert!(
         (e1 - e2).abs() < 4.0 * rel_sd_half * 2f64.sqrt() * 0.5 * (e1 + e2),
         "halves {e1} {e2}"
@@ -567,11 +572,11 @@ fn viscosity_cytosol_lambda5_quick() {
         (ratio / 5.0 - 1.0).abs() < 4.0 * rel_sd_half / 2f64.sqrt() + 0.01,
         "λ_measured = {ratio}"
     );
-    // The cytosol's peculiar kBT in this flow was measured at 1.14 (the outer fluid at its
-    // own step and the same profile: 0.999): at γΔt = 0.48 the explicit friction keeps the
-    // temperature at rest (the time-step scan) but not under this shear. A known defect
-    // (docs/units.md, "The cytosol"); the bound catches it growing, not the defect itself.
-    assert!((r.peculiar_kbt - 1.0).abs() < 0.2, "kBT {}", r.peculiar_kbt);
+    // Against the exact profile with the box's momentum drift removed the cytosol keeps kBT
+    // within 1 % in this flow at every γΔt up to 0.48 (`cytosol_temperature_under_shear_scan`);
+    // against the binned profile of the run, which the drift (RMS 0.2 here) blurs, it read
+    // 1.008. The bound catches the step or the friction going wrong.
+    assert!((r.peculiar_kbt - 1.0).abs() < 0.05, "kBT {}", r.peculiar_kbt);
 }
 
 /// The measurement behind docs/units.md's λ = 5 validation: the capillary fluid's cytosol
@@ -627,5 +632,126 @@ fn viscosity_cytosol_lambda5_long() {
             (lam - 5.0).abs() < 3.0 * lse + 0.05,
             "{name}: λ_measured = {lam} ± {lse}"
         );
+    }
+}
+
+/// Peculiar kBT of `fluid` in the reverse-Poiseuille flow of drive `g`, against the analytic
+/// steady profile of η = `fluid.eta_guess` (the run starts on it): `neq` steps, then one
+/// snapshot every 100 steps for `nsample` steps. Returns the mean and standard error of kBT
+/// against the profile alone, the same against the profile plus the snapshot's centre-of-mass
+/// velocity, and the RMS of that velocity. The two halves' drives cancel only on average: the
+/// particle counts of the halves fluctuate, so the total momentum random-walks.
+struct ShearedKbt {
+    profile: (f64, f64),
+    profile_and_drift: (f64, f64),
+    drift_rms: f64,
+}
+
+fn sheared_kbt(fluid: &RpFluid, g: f64, neq: u64, nsample: u64, seed: u64) -> ShearedKbt {
+    let (lxy, lz) = (6.0, 16.0);
+    let config = SimConfig::new(DVec3::new(lxy, lxy, lz), fluid.dt, seed);
+    let field = ForceField::single(fluid.pair);
+    let spec = init::FluidSpec {
+        density: fluid.density,
+        kbt: fluid.pair.kbt,
+        ..init::FluidSpec::standard()
+    };
+    let mut p = init::fluid(&config, &field, &spec, seed + 1).unwrap();
+    let h = 0.5 * lz;
+    let rho = p.len() as f64 / (lxy * lxy * lz);
+    let a0 = rho * g / (2.0 * fluid.eta_guess);
+    // continuous at both kinks; each half's mean is ±a0h²/6 and the total momentum zero
+    let profile = move |z: f64| {
+        if z < h {
+            a0 * z * (h - z)
+        } else {
+            -a0 * (z - h) * (lz - z)
+        }
+    };
+    for (x, v) in p.pos.iter().zip(p.vel.iter_mut()) {
+        v.x += profile(x.z);
+    }
+    let mut sim = Simulation::with_extension(config, field, p, ReversePoiseuille { g, half: h }).unwrap();
+    sim.run(neq).unwrap();
+    let (mut temps, mut temps_drift, mut drift2) = (Vec::new(), Vec::new(), 0.0);
+    for k in 0..nsample {
+        sim.step().unwrap();
+        if k % 100 == 99 {
+            let p = sim.particles();
+            let com = p.vel.iter().sum::<DVec3>() / p.len() as f64;
+            drift2 += com.length_squared();
+            temps.push(observe::peculiar_temperature(p, sim.field(), |x| {
+                DVec3::new(profile(x.z), 0.0, 0.0)
+            }));
+            temps_drift.push(observe::peculiar_temperature(p, sim.field(), |x| {
+                DVec3::new(profile(x.z), 0.0, 0.0) + com
+            }));
+        }
+    }
+    ShearedKbt {
+        profile: mean_se(&temps),
+        profile_and_drift: mean_se(&temps_drift),
+        drift_rms: (drift2 / temps.len() as f64).sqrt(),
+    }
+}
+
+/// The cytosol's temperature under shear against its step: the peculiar kBT of the λ = 5 cytosol
+/// of the capillary fluid (γ = 600) and of the outer fluid (γ = 120), at rest and in the
+/// reverse-Poiseuille flow of `viscosity_cytosol_lambda5_quick` (the same profile for both:
+/// peak shear rate 0.23, ⟨γ̇²⟩ = 0.018 per time unit²), at γΔt = 0.48 (the shipped
+/// `friction_step_limit`), 0.30 and 0.24, and at half the drive at 0.48. Each point: 20 time
+/// units after 2000 steps, kBT every 100 steps against the analytic profile, with and without
+/// the snapshot's centre-of-mass drift. Prints the table of docs/units.md ("The cytosol") and
+/// asserts what it states: at rest every step keeps kBT within 0.5 % (the limit's definition);
+/// under shear, with the drift removed, every fluid and step keeps kBT within 1 %, and the
+/// cytosol is within 1 % of the outer fluid at every step (its larger γ adds no heat).
+/// ≈ 5 min on 2 cores.
+#[test]
+#[ignore]
+fn cytosol_temperature_under_shear_scan() {
+    let outer = RpFluid {
+        eta_guess: CAPILLARY_FLUID_VISCOSITY,
+        ..RpFluid::capillary()
+    };
+    let mut sheared = [[0.0; 4]; 2];
+    for (k, (name, lambda)) in [("outer", 1.0), ("cytosol λ = 5", 5.0)].into_iter().enumerate() {
+        for (j, (gdt, drive)) in [(0.48, 1.0), (0.30, 1.0), (0.24, 1.0), (0.48, 0.5)]
+            .into_iter()
+            .enumerate()
+        {
+            let fluid = cytosol(outer, lambda, gdt, CAPILLARY_FLUID_VISCOSITY);
+            let g = drive * lambda * CAPILLARY_G;
+            let steps = (20.0 / fluid.dt) as u64;
+            let r = sheared_kbt(&fluid, g, 2000, steps, 3);
+            let ((shear, sse), (pec, pse)) = (r.profile, r.profile_and_drift);
+            let rest = if drive == 1.0 {
+                let (rest, rse) = sheared_kbt(&fluid, 0.0, 2000, steps, 3).profile_and_drift;
+                assert!(
+                    (rest - 1.0).abs() < 0.005,
+                    "{name} at rest, γΔt = {gdt}: kBT {rest} ± {rse}"
+                );
+                format!("{rest:.4} ± {rse:.4}")
+            } else {
+                "-".into()
+            };
+            eprintln!(
+                "{name} (γ = {}, Δt = {:.5}, γΔt = {gdt:.2}), drive × {drive}: kBT at rest {rest}; sheared, against the profile {shear:.4} ± {sse:.4}, against the profile and the drift {pec:.4} ± {pse:.4} (drift RMS {:.3})",
+                fluid.pair.gamma, fluid.dt, r.drift_rms
+            );
+            sheared[k][j] = pec;
+        }
+    }
+    for j in 0..3 {
+        assert!(
+            (sheared[1][j] - sheared[0][j]).abs() < 0.01,
+            "step {j}: cytosol {} against outer {}",
+            sheared[1][j],
+            sheared[0][j]
+        );
+    }
+    for (k, s) in sheared.iter().enumerate() {
+        for (j, t) in s.iter().enumerate() {
+            assert!((t - 1.0).abs() < 0.01, "fluid {k}, point {j}: sheared kBT {t}");
+        }
     }
 }

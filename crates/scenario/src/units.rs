@@ -176,7 +176,8 @@ impl FluidModel {
             // γ = 41 at Δt = 0.003: kBT 1.0011 (0.0035: 1.034)
             friction_step_limit: 41.0 * DENSE_FLUID_TIMESTEP,
             wall_slip: DENSE_FLUID_WALL_SLIP,
-            particle_steps_per_s: 3.0e6,
+            // fluid_bench, 40,960 particles, 2 threads, with the s = ⅛ kernel (docs/performance.md)
+            particle_steps_per_s: 3.1e6,
             measured_by: "viscosity_dense_long (crates/engine/tests/viscosity.rs), dense_fluid_timestep_scan and dense_fluid_sound_speed (crates/engine/tests/dense_fluid.rs), dense_fluid_wall_slip (tests/capillary.rs)",
         }
     }
