@@ -72,6 +72,40 @@ fn cell_in_shear_keeps_its_volume_and_the_fluid_its_shear_rate() {
     }
 }
 
+/// Fischer's highest shear rate (260 1/s at 28.9 mPa·s) runs with κ/kBT exact: `fluid = "auto"`
+/// with `thermal_factor = "exact"` rules out the capillary fluid (Mach 66 at f = 1) and the dense
+/// one (Mach 2.1) and takes the viscous fluid (Mach ≈ 0.25, Re ≈ 0.13). A short run of the N = 500
+/// cell (0.3 strain, ≈ 1400 steps in a 14 × 12 × 12 µm box) keeps its area and volume within 2 %,
+/// lets no fluid through, and the plasma carries the imposed shear rate within 5 %.
+#[test]
+fn fischer_top_rate_runs_with_exact_kappa() {
+    let dir = tempfile::tempdir().unwrap();
+    // the box and frames of `small`, with the N = 500 cell
+    let s = small(&[
+        "cell.vertices=500",
+        "shear.shear_rate_per_s=260",
+        "model.fluid=\"auto\"",
+        "model.thermal_factor=\"exact\"",
+        "shear.duration_strain=0.3",
+        "shear.analysis_start_strain=0.1",
+        "model.crossing_check_every_steps=100",
+    ]);
+    let r = run(&s, &RunContext::new(dir.path(), 0, false)).unwrap();
+    eprintln!("fluid {}; groups {}; cell {}", r["fluid"], r["groups_model"], r["cell"]);
+    assert_eq!(r["fluid"]["name"], "viscous", "{}", r["fluid"]);
+    let (k_si, k_m) = (
+        f(&r["groups_si"]["kappa_over_kbt"]),
+        f(&r["groups_model"]["kappa_over_kbt"]),
+    );
+    assert!((k_si / k_m - 1.0).abs() < 1e-9, "κ/kBT {k_si} vs {k_m}");
+    assert!(f(&r["groups_model"]["mach"]) <= 0.25 + 1e-9);
+    let measured = f(&r["shear"]["measured_fluid_shear_rate_per_s"]);
+    assert!((measured / 260.0 - 1.0).abs() < 0.05, "fluid shear rate {measured}");
+    assert!(f(&r["cell"]["max_abs_area_deviation"]) < 0.02);
+    assert!(f(&r["cell"]["max_abs_volume_deviation"]) < 0.02);
+    assert_eq!(r["crossings"]["misplaced_total"], 0, "{}", r["crossings"]);
+}
+
 /// Interrupted twice (on 2 threads) and resumed, a run ends bit-identical to one uninterrupted
 /// run on 1 thread: the same motion series and the same particle state.
 #[test]

@@ -101,6 +101,34 @@ pub const DENSE_FLUID_SOUND_SPEED: Real = 14.57;
 /// 3 seeds × 20 000 sampled steps, the flux 22 % above no-slip, b = 0.277 ± 0.005).
 pub const DENSE_FLUID_WALL_SLIP: Real = 0.277;
 
+/// Dissipative coefficient of the viscous fluid ([`PairParams::viscous`]): 10 × the dense
+/// fluid's, for a cell in shear at Fischer's rates (up to 260 1/s at 28.9 mPa·s) with κ/kBT
+/// exact (docs/units.md, "Choosing the fluid").
+pub const VISCOUS_FLUID_GAMMA: Real = 410.0;
+/// Time step of the viscous fluid: γΔt = 0.123, the dense fluid's validated friction limit.
+/// `viscous_fluid_timestep_scan` (crates/engine/tests/dense_fluid.rs, 8³ box, mean of 4000
+/// steps after 1000): kBT 1.0000 ± 0.0003 at 0.0002 and 0.00025, 0.9999 ± 0.0002 at 0.0003,
+/// 1.0005 ± 0.0002 at 0.00035 (but the pressure 9 % high: 1097 ± 7 against 1009 ± 8), 0.0004
+/// blows up at step 105: the friction's cliff sits at the same γΔt as the dense fluid's.
+pub const VISCOUS_FLUID_TIMESTEP: Real = 0.0003;
+/// Kinetic kBT of the viscous fluid at rest at [`VISCOUS_FLUID_TIMESTEP`], relative to the
+/// thermostat's (`viscous_fluid_timestep_scan`).
+pub const VISCOUS_FLUID_KBT_AT_TIMESTEP: Real = 0.9999;
+/// Shear viscosity of the viscous fluid at [`VISCOUS_FLUID_TIMESTEP`], by reverse Poiseuille
+/// flow as for the dense fluid (`viscosity_viscous_long` in crates/engine/tests/viscosity.rs:
+/// 6 × 6 × 16, g = 13 (centre velocity ≈ 0.5), 4 seeds × 2 halves × 40 000 steps: 1977.0 ±
+/// 6.3, SD 17.8 per half). 8.7 × the dense fluid's for 10 × its γ: not proportional (the
+/// conservative and kinetic parts do not scale with γ, and pair correlations change); kinetic
+/// theory says 2021.
+pub const VISCOUS_FLUID_VISCOSITY: Real = 1977.0;
+/// Standard error of [`VISCOUS_FLUID_VISCOSITY`].
+pub const VISCOUS_FLUID_VISCOSITY_SE: Real = 6.3;
+/// Slip length of the viscous fluid at a wall of its own frozen particles with bounce-back, rc,
+/// measured like [`CAPILLARY_FLUID_WALL_SLIP`] (`viscous_fluid_wall_slip` in
+/// tests/capillary.rs: 3 seeds × 20 000 sampled steps, the flux 16.0–17.7 % above no-slip,
+/// b = 0.212 ± 0.008).
+pub const VISCOUS_FLUID_WALL_SLIP: Real = 0.212;
+
 /// α of the Groot–Warren equation of state p = ρ kBT + α a ρ² (fitted for ρ ≥ 2, rc = 1).
 pub const GROOT_WARREN_EOS_ALPHA: Real = 0.101;
 
@@ -157,6 +185,18 @@ impl PairParams {
             kbt: 1.0,
             rc: 1.0,
             s: 0.125,
+        }
+    }
+
+    /// The viscous fluid: the dense fluid ([`PairParams::dense`]) with γ =
+    /// [`VISCOUS_FLUID_GAMMA`] (10 ×), at ρ = [`DENSE_FLUID_DENSITY`] and Δt =
+    /// [`VISCOUS_FLUID_TIMESTEP`]. Its conservative force, hence its equilibrium structure,
+    /// pressure and sound speed, are the dense fluid's; its viscosity
+    /// ([`VISCOUS_FLUID_VISCOSITY`]) is ≈ 10× larger, its step 10× shorter.
+    pub const fn viscous() -> Self {
+        Self {
+            gamma: VISCOUS_FLUID_GAMMA,
+            ..Self::dense()
         }
     }
 

@@ -6,7 +6,8 @@
 
 use glam::DVec3;
 use hemodpd_engine::params::{
-    DENSE_FLUID_DENSITY, DENSE_FLUID_TIMESTEP, DENSE_FLUID_VISCOSITY, DENSE_FLUID_VISCOSITY_SE,
+    DENSE_FLUID_DENSITY, DENSE_FLUID_TIMESTEP, DENSE_FLUID_VISCOSITY, DENSE_FLUID_VISCOSITY_SE, VISCOUS_FLUID_TIMESTEP,
+    VISCOUS_FLUID_VISCOSITY, VISCOUS_FLUID_VISCOSITY_SE,
 };
 use hemodpd_engine::{init, observe, EngineError, Extension, ForceField, PairParams, SimConfig, Simulation, StateMut};
 
@@ -93,6 +94,17 @@ impl RpFluid {
             density: DENSE_FLUID_DENSITY,
             dt: DENSE_FLUID_TIMESTEP,
             eta_guess: DENSE_FLUID_VISCOSITY,
+        }
+    }
+
+    /// The viscous fluid ([`PairParams::viscous`]) at its density and time step, started from
+    /// the profile of its shipped viscosity.
+    pub fn viscous() -> Self {
+        Self {
+            pair: PairParams::viscous(),
+            density: DENSE_FLUID_DENSITY,
+            dt: VISCOUS_FLUID_TIMESTEP,
+            eta_guess: VISCOUS_FLUID_VISCOSITY,
         }
     }
 }
@@ -452,24 +464,70 @@ const DENSE_G: f64 = 1.3;
 /// (scaled by √(long/quick steps)), the mean within 3 of that SD/√2 plus the constant's SE.
 #[test]
 fn viscosity_dense_quick() {
-    let r = reverse_poiseuille(&RpFluid::dense(), 6.0, 16.0, DENSE_G, 1500, 12000, 5, 11);
+    quick_measurement(
+        "dense",
+        &RpFluid::dense(),
+        DENSE_G,
+        (1500, 12_000),
+        DENSE_SD_PER_HALF_40K,
+        (DENSE_FLUID_VISCOSITY, DENSE_FLUID_VISCOSITY_SE),
+    );
+}
+
+/// Check of [`VISCOUS_FLUID_VISCOSITY`], as `viscosity_dense_quick` but with the long
+/// measurement's protocol (3000 + 40 000 steps of Δt = 0.0003, one seed; ≈ 80 s on 2 cores):
+/// runs of 1500 + 12 000 steps read 6 % low at this γ (interior η 1827–1900 over four seeds,
+/// against 1977 ± 6 from 40 000 steps), a run-length dependence not yet understood
+/// (docs/units.md), so the suite checks the table with the protocol that produced it.
+#[test]
+fn viscosity_viscous_quick() {
+    quick_measurement(
+        "viscous",
+        &RpFluid::viscous(),
+        VISCOUS_G,
+        (3000, 40_000),
+        VISCOUS_SD_PER_HALF_40K,
+        (VISCOUS_FLUID_VISCOSITY, VISCOUS_FLUID_VISCOSITY_SE),
+    );
+}
+
+/// One 6 × 6 × 16 reverse-Poiseuille run of 12 000 sampled steps; asserts the halves within 4
+/// SD per half (`sd_half_40k` at 40 000 steps, scaled by √(40/12)) of each other and their mean
+/// within 3 SD/√2 plus the table's SE of the table's η.
+fn quick_measurement(
+    name: &str,
+    fluid: &RpFluid,
+    g: f64,
+    (neq, steps): (u64, u64),
+    sd_half_40k: f64,
+    (table, table_se): (f64, f64),
+) {
+    let r = reverse_poiseuille(fluid, 6.0, 16.0, g, neq, steps, 5, 11);
     let [e1, e2] = r.interior;
     let eta = 0.5 * (e1 + e2);
     eprintln!(
-        "quick dense reverse Poiseuille: interior η = {e1:.2}, {e2:.2} (mean {eta:.2}; whole halves {:.2} {:.2}), kBT_pec = {:.4}",
+        "quick {name} reverse Poiseuille: interior η = {e1:.2}, {e2:.2} (mean {eta:.2}; whole halves {:.2} {:.2}), kBT_pec = {:.4}",
         r.whole[0], r.whole[1], r.peculiar_kbt
     );
-    let sd_half = DENSE_SD_PER_HALF_40K * (40.0f64 / 12.0).sqrt();
+    let sd_half = sd_half_40k * (40_000.0 / steps as f64).sqrt();
     assert!((e1 - e2).abs() < 4.0 * sd_half * 2f64.sqrt(), "halves {e1} {e2}");
     assert!(
-        (eta - DENSE_FLUID_VISCOSITY).abs() < 3.0 * sd_half / 2f64.sqrt() + DENSE_FLUID_VISCOSITY_SE,
-        "η = {eta} vs {DENSE_FLUID_VISCOSITY}"
+        (eta - table).abs() < 3.0 * sd_half / 2f64.sqrt() + table_se,
+        "η = {eta} vs the table's {table}"
     );
 }
 
 /// SD of one half's interior η over 40 000 sampled steps of the dense fluid at g = [`DENSE_G`]
 /// (`viscosity_dense_long`).
 const DENSE_SD_PER_HALF_40K: f64 = 2.0;
+
+/// Drive of the viscous-fluid runs: the dense fluid's × 10, the same centre velocity ≈ 0.45
+/// (Mach ≈ 0.03) at 10 × the viscosity.
+const VISCOUS_G: f64 = 13.0;
+
+/// SD of one half's interior η over 40 000 sampled steps of the viscous fluid at g =
+/// [`VISCOUS_G`] (`viscosity_viscous_long`).
+const VISCOUS_SD_PER_HALF_40K: f64 = 17.8;
 
 /// The measurement behind [`DENSE_FLUID_VISCOSITY`]: 4 seeds of the 6 × 6 × 16 dense fluid at
 /// g = [`DENSE_G`] (8 halves, 40 000 sampled steps of Δt = 0.003 each, after 3000) and 2 seeds
@@ -479,13 +537,38 @@ const DENSE_SD_PER_HALF_40K: f64 = 2.0;
 #[test]
 #[ignore]
 fn viscosity_dense_long() {
+    long_measurement(
+        "dense",
+        &RpFluid::dense(),
+        DENSE_G,
+        (DENSE_FLUID_VISCOSITY, DENSE_FLUID_VISCOSITY_SE),
+    );
+}
+
+/// The measurement behind [`VISCOUS_FLUID_VISCOSITY`], as `viscosity_dense_long` (40 000
+/// sampled steps of Δt = 0.0003 per seed, ≈ 8 min on 2 cores in release).
+#[test]
+#[ignore]
+fn viscosity_viscous_long() {
+    long_measurement(
+        "viscous",
+        &RpFluid::viscous(),
+        VISCOUS_G,
+        (VISCOUS_FLUID_VISCOSITY, VISCOUS_FLUID_VISCOSITY_SE),
+    );
+}
+
+/// 4 seeds at `g` and 2 at g/2 of the 6 × 6 × 16 box, 40 000 sampled steps each after 3000:
+/// prints η ± SE and the SD per half for each drive and kinetic theory; asserts the two drives
+/// within 3 combined SE and the table's η within 3 SE of the mean at `g`.
+fn long_measurement(name: &str, fluid: &RpFluid, g0: f64, (table, table_se): (f64, f64)) {
     let mut per_g = Vec::new();
-    for (g, seeds) in [(DENSE_G, &[1u64, 2, 3, 4][..]), (0.5 * DENSE_G, &[7u64, 8][..])] {
+    for (g, seeds) in [(g0, &[1u64, 2, 3, 4][..]), (0.5 * g0, &[7u64, 8][..])] {
         let (mut interior, mut kbt) = (Vec::new(), Vec::new());
         for &seed in seeds {
-            let r = reverse_poiseuille(&RpFluid::dense(), 6.0, 16.0, g, 3000, 40000, 5, seed);
+            let r = reverse_poiseuille(fluid, 6.0, 16.0, g, 3000, 40000, 5, seed);
             eprintln!(
-                "dense fluid, g = {g}, seed {seed}: η = {:.2} {:.2} (interior {:.2} {:.2}), kBT_pec = {:.4}",
+                "{name} fluid, g = {g}, seed {seed}: η = {:.2} {:.2} (interior {:.2} {:.2}), kBT_pec = {:.4}",
                 r.whole[0], r.whole[1], r.interior[0], r.interior[1], r.peculiar_kbt
             );
             interior.extend(r.interior);
@@ -495,25 +578,22 @@ fn viscosity_dense_long() {
         let sd = ise * (interior.len() as f64).sqrt();
         let (t, _) = mean_se(&kbt);
         eprintln!(
-            "SUMMARY dense g = {g}: interior η = {i:.2} ± {ise:.2} (SD per half {sd:.2}, {} halves), kBT_pec {t:.4}",
+            "SUMMARY {name} g = {g}: interior η = {i:.2} ± {ise:.2} (SD per half {sd:.2}, {} halves), kBT_pec {t:.4}",
             interior.len()
         );
         per_g.push((i, ise));
     }
-    let kt = kinetic_theory_viscosity(&PairParams::dense(), DENSE_FLUID_DENSITY, 1.0);
+    let kt = kinetic_theory_viscosity(&fluid.pair, fluid.density, 1.0);
     let ((a, sa), (b, sb)) = (per_g[0], per_g[1]);
     eprintln!(
-        "SUMMARY dense fluid: η = {a:.2} ± {sa:.2} (g = {DENSE_G}), {b:.2} ± {sb:.2} (g = {}); constant {DENSE_FLUID_VISCOSITY} ± {DENSE_FLUID_VISCOSITY_SE}; kinetic theory {kt:.2}",
-        0.5 * DENSE_G
+        "SUMMARY {name} fluid: η = {a:.2} ± {sa:.2} (g = {g0}), {b:.2} ± {sb:.2} (g = {}); constant {table} ± {table_se}; kinetic theory {kt:.2}",
+        0.5 * g0
     );
     assert!(
         (a - b).abs() < 3.0 * (sa * sa + sb * sb).sqrt(),
-        "g = {DENSE_G}: {a} ± {sa}, half: {b} ± {sb}"
+        "g = {g0}: {a} ± {sa}, half: {b} ± {sb}"
     );
-    assert!(
-        (a - DENSE_FLUID_VISCOSITY).abs() < 3.0 * sa,
-        "measured {a} ± {sa}, DENSE_FLUID_VISCOSITY = {DENSE_FLUID_VISCOSITY}"
-    );
+    assert!((a - table).abs() < 3.0 * sa, "measured {a} ± {sa}, table {table}");
 }
 
 /// The cytosol at the physiological viscosity ratio λ = 5: the outer fluid with γ × λ (what

@@ -28,7 +28,8 @@ use hemodpd_engine::params::{
     self, PairParams, CAPILLARY_FLUID_DENSITY, CAPILLARY_FLUID_TIMESTEP, CAPILLARY_FLUID_VISCOSITY,
     CAPILLARY_FLUID_VISCOSITY_SE, CAPILLARY_FLUID_WALL_SLIP, DENSE_FLUID_DENSITY, DENSE_FLUID_KBT_AT_TIMESTEP,
     DENSE_FLUID_SOUND_SPEED, DENSE_FLUID_TIMESTEP, DENSE_FLUID_VISCOSITY, DENSE_FLUID_VISCOSITY_SE,
-    DENSE_FLUID_WALL_SLIP, STANDARD_FLUID_VISCOSITY, STANDARD_FLUID_VISCOSITY_SE,
+    DENSE_FLUID_WALL_SLIP, STANDARD_FLUID_VISCOSITY, STANDARD_FLUID_VISCOSITY_SE, VISCOUS_FLUID_KBT_AT_TIMESTEP,
+    VISCOUS_FLUID_TIMESTEP, VISCOUS_FLUID_VISCOSITY, VISCOUS_FLUID_VISCOSITY_SE, VISCOUS_FLUID_WALL_SLIP,
 };
 use hemodpd_membrane::params::{ModelParams, BOLTZMANN_J_PER_K};
 use hemodpd_membrane::shape::{reduced_volume, EvansFung};
@@ -182,6 +183,32 @@ impl FluidModel {
         }
     }
 
+    /// The viscous fluid ([`PairParams::viscous`]: the dense fluid with γ = 410, Δt = 0.0003, η
+    /// measured, c the dense fluid's): ≈ 10× the dense fluid's η·c, for a cell in shear at
+    /// Fischer's rates (up to 260 1/s at 28.9 mPa·s) with κ/kBT exact, at ≈ 100× the dense
+    /// fluid's steps per physical second.
+    pub fn viscous() -> Self {
+        let pair = PairParams::viscous();
+        Self {
+            name: "viscous",
+            pair,
+            density: DENSE_FLUID_DENSITY,
+            mass: 1.0,
+            viscosity: VISCOUS_FLUID_VISCOSITY,
+            viscosity_se: VISCOUS_FLUID_VISCOSITY_SE,
+            // same conservative force and ensemble as the dense fluid: the same pressure
+            // (viscous_fluid_temperature_and_pressure checks it to 1 %)
+            sound_speed: DENSE_FLUID_SOUND_SPEED,
+            timestep: VISCOUS_FLUID_TIMESTEP,
+            kbt_at_timestep: VISCOUS_FLUID_KBT_AT_TIMESTEP,
+            friction_step_limit: pair.gamma * VISCOUS_FLUID_TIMESTEP,
+            wall_slip: VISCOUS_FLUID_WALL_SLIP,
+            // the dense fluid's pair loop (the same kernel, density and cutoff)
+            particle_steps_per_s: 3.1e6,
+            measured_by: "viscosity_viscous_long (crates/engine/tests/viscosity.rs), viscous_fluid_timestep_scan and viscous_fluid_temperature_and_pressure (crates/engine/tests/dense_fluid.rs), viscous_fluid_wall_slip (tests/capillary.rs)",
+        }
+    }
+
     /// The Groot–Warren standard fluid (a = 25, γ = 4.5, s = 1, ρ = 3, Δt = 0.01, η = 0.842).
     /// Not in the [`table`](Self::table): its η·c is too small for a cell in flow.
     pub fn standard() -> Self {
@@ -204,9 +231,10 @@ impl FluidModel {
     }
 
     /// The fluids a cell-in-flow scenario can run with, by `model.fluid` name: the capillary
-    /// fluid (cheap, hot: κ/kBT exact only at slow flow) and the dense fluid (≈ 30× its η·c).
+    /// fluid (cheap, hot: κ/kBT exact only at slow flow), the dense fluid (≈ 30× its η·c) and
+    /// the viscous fluid (≈ 300×).
     pub fn table() -> Vec<FluidModel> {
-        vec![Self::capillary(), Self::dense()]
+        vec![Self::capillary(), Self::dense(), Self::viscous()]
     }
 
     /// The fluid of the table named `name`.
@@ -1095,8 +1123,11 @@ mod tests {
                     // physical Re ≈ 0.01 and Mach ≈ 1e-6: the model's are far larger at the
                     // least f (at f = 400 the dense fluid's Re can fall below the physical one)
                     assert!(a.reynolds < 0.1 && a.mach < 1e-5, "{ctx}");
+                    // the model's Mach number is far above the physical one at any f; its Reynolds
+                    // number need not be: the viscous fluid at 0.2 mm/s (f = 1) has Re below the
+                    // physical one (its ratio to the physical Re is checked above)
                     if choice == ThermalChoice::default() {
-                        assert!(b.reynolds > a.reynolds && b.mach > 100.0 * a.mach, "{ctx}");
+                        assert!(b.mach > 100.0 * a.mach, "{ctx}");
                     }
                 }
             }

@@ -178,7 +178,8 @@ macro_rules! model_section {
             #[serde(default = "crate::cell::section::d_mach")]
             pub max_mach: f64,
             /// The DPD fluid: "capillary" (default: n = 3, a = 25, γ = 120, s = 1/4), "dense"
-            /// (n = 10, a = 100, γ = 41, s = 1/8) or "auto": the fluid of the table that meets
+            /// (n = 10, a = 100, γ = 41, s = 1/8), "viscous" (the dense fluid with γ = 410, for
+            /// shear at Fischer's rates) or "auto": the fluid of the table that meets
             /// `thermal_factor`, `max_mach` and `max_reynolds` at the least cost (docs/units.md,
             /// "Choosing the fluid").
             #[serde(default = "crate::cell::section::d_fluid")]

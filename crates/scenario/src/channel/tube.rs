@@ -100,16 +100,16 @@ pub fn validate(s: &TubeScenario, file: &str) -> Result<(), ScenarioError> {
             c.range(
                 "tube.body_force",
                 g,
-                -10.0,
-                10.0,
-                "a body force between −10 and 10 (model units; 0.05–0.2 keeps the flow laminar and the shear rate moderate)",
+                -100.0,
+                100.0,
+                "a body force between −100 and 100 (model units; the flow scales as g/η: 0.05–0.2 for the standard fluid, ≈ 1 for the dense, ≈ 10–40 for the viscous)",
             )?;
             // no drive, no flow: the viscosity from the profile's curvature would be 0/0
             if g == 0.0 && mean.is_none() {
                 return Err(c.fail(
                     "tube.body_force",
                     g,
-                    "a non-zero body force between −10 and 10 (zero drives no flow: the viscosity and the parabola fit would be meaningless), or tube.mean_velocity for a flow held at a mean velocity",
+                    "a non-zero body force between −100 and 100 (zero drives no flow: the viscosity and the parabola fit would be meaningless), or tube.mean_velocity for a flow held at a mean velocity",
                 ));
             }
         }
