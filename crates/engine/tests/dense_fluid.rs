@@ -182,26 +182,10 @@ fn dense_fluid_sound_speed() {
 /// forces: SE ≈ 7 against ≈ 2). Measured: 987.2 ± 7.4 against 1007.9 ± 2.4.
 #[test]
 fn viscous_fluid_temperature_and_pressure() {
-    let ((t, se), (p, pse)) = try_measure(
-        PairParams::viscous(),
-        DENSE_FLUID_DENSITY,
-        VISCOUS_FLUID_TIMESTEP,
-        6.0,
-        300,
-        3000,
-        7,
-    )
-    .unwrap();
-    let ((_, _), (pd, pdse)) = try_measure(
-        PairParams::dense(),
-        DENSE_FLUID_DENSITY,
-        VISCOUS_FLUID_TIMESTEP,
-        6.0,
-        300,
-        3000,
-        7,
-    )
-    .unwrap();
+    // both fluids at the viscous fluid's step, the same box and seed
+    let at_step = |pair| try_measure(pair, DENSE_FLUID_DENSITY, VISCOUS_FLUID_TIMESTEP, 6.0, 300, 3000, 7).unwrap();
+    let ((t, se), (p, pse)) = at_step(PairParams::viscous());
+    let (_, (pd, pdse)) = at_step(PairParams::dense());
     eprintln!(
         "viscous fluid, dt = {VISCOUS_FLUID_TIMESTEP}: kBT = {t:.4} ± {se:.4}, p = {p:.1} ± {pse:.1}; dense fluid p = {pd:.1} ± {pdse:.1}"
     );
