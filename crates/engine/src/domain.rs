@@ -114,7 +114,7 @@ impl PeriodicBox {
     /// Maps `p` into the box and returns the number k of y periods it was moved down by
     /// (k = 1: it left through y = Ly). Its velocity must change by −k U x̂. Without shear k
     /// is still counted but the position is as in an ordinary periodic box.
-    #[inline]
+    #[inline(always)]
     pub fn wrap_sheared(&self, p: DVec3) -> (DVec3, i32) {
         let l = self.lengths;
         let y = wrap1(p.y, l.y);
@@ -174,7 +174,7 @@ pub(crate) fn round(v: Real) -> Real {
 
 /// Wraps one coordinate into `[0, l)`. Exact (no rounding) for the common case of a particle that
 /// left the box by less than one box length.
-#[inline]
+#[inline(always)]
 pub(crate) fn wrap1(x: Real, l: Real) -> Real {
     let mut y = x;
     if y >= l {

@@ -15,18 +15,16 @@
 //! on by [`hemodpd_membrane::motion`] and classified over the window after
 //! `analysis_start_strain`; `hemodpd analyze` does the same from a trajectory.
 
-use crate::cell::build::{
-    cell_membrane_viscosity, cell_mesh_um, check_membrane_timestep, membrane_model, place_cell, CellPlan,
-};
+use crate::cell::build::{cell_mesh_um, check_membrane_timestep, membrane_model, place_cell, CellPlan, CellSetup};
 use crate::cell::checkpoint::{open_cell_trajectory, restore_cell_run, save_cell_run, CheckpointHead};
-use crate::cell::section::{cell_mapping, cell_params, resolve_substeps, validate_cell, validate_model, ModelKeys};
-use crate::cell::summary::{crossings_json, membrane_viscosity_summary, step_shares};
-use crate::cell::{describe_engine_error, CellSection, CellSim, OUTER, VERTEX_MASS};
+use crate::cell::section::{cell_mapping, cell_params, validate_cell, validate_model, ModelKeys};
+use crate::cell::summary::{common_blocks, performance_json, StepClock};
+use crate::cell::{describe_engine_error, CellSection, CellSim, OUTER};
 use crate::context::{RunContext, RunError};
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
 use crate::run_dir::{engine_err, out_err, TRAJECTORY_FILE};
-use crate::units::{self, um_to_m, FluidDecision, FluidModel, PhysicalSystem, UnitMapping};
+use crate::units::{self, um_to_m, FluidDecision, PhysicalSystem};
 use glam::DVec3;
 use hemodpd_engine::walls::{self, WallSetup, WallShape};
 use hemodpd_engine::{init, SimConfig};
@@ -254,9 +252,9 @@ impl ShearScenario {
         let _ = writeln!(
             s,
             "  time step            {:>12.4e} s     {:>12.4e} model ({:.0} steps per unit strain)",
-            plan.dt * m.time_s,
-            plan.dt,
-            1.0 / (plan.rate * plan.dt)
+            plan.setup.dt * m.time_s,
+            plan.setup.dt,
+            1.0 / (plan.rate * plan.setup.dt)
         );
         let _ = writeln!(
             s,
@@ -427,10 +425,8 @@ pub fn validate(s: &ShearScenario, file: &str) -> Result<(), ScenarioError> {
 /// Everything derived from the file, model units.
 pub struct Plan<'a> {
     pub s: &'a ShearScenario,
-    pub sys: PhysicalSystem,
-    pub map: UnitMapping,
-    pub fluid: FluidModel,
-    pub dt: f64,
+    /// The system, the fluid and mapping chosen for it, the time step and the sub-steps.
+    pub setup: CellSetup,
     /// Shear rate γ̇ (model).
     pub rate: f64,
     pub box_lengths: DVec3,
@@ -441,15 +437,13 @@ pub struct Plan<'a> {
     pub steps: u64,
     pub sample_every: u64,
     pub frame_every: u64,
-    /// Membrane sub-steps per fluid step (`model.membrane_substeps`, resolved).
-    pub substeps: u32,
     toml: String,
 }
 
 impl<'a> Plan<'a> {
     pub fn new(s: &'a ShearScenario) -> Result<Self, RunError> {
-        let (sys, FluidDecision { fluid, map, .. }) = s.mapping()?;
-        let dt = s.model.timestep.unwrap_or(fluid.default_timestep(&sys, &map));
+        let setup = CellSetup::new(s.physical()?, s.model.shared(), &s.cell)?;
+        let (map, fluid, dt) = (&setup.map, &setup.fluid, setup.dt);
         let rate = s.shear_rate() * map.time_s;
         let mut l = DVec3::from_array(s.shear.box_um.map(|x| map.length_to_model(um_to_m(x))));
         let rc = fluid.pair.rc;
@@ -481,19 +475,9 @@ impl<'a> Plan<'a> {
         } else {
             0
         };
-        let substeps = resolve_substeps(
-            &s.model.membrane_substeps,
-            cell_membrane_viscosity(&s.cell, &map).as_ref(),
-            dt,
-            VERTEX_MASS,
-        );
         Ok(Plan {
             s,
-            sys,
-            map,
-            fluid,
-            dt,
-            substeps,
+            setup,
             rate,
             box_lengths: l,
             plates,
@@ -514,7 +498,7 @@ impl<'a> Plan<'a> {
     /// initial inclination from x, centred in the box.
     fn rest_mesh(&self) -> Result<(Mesh, serde_json::Value), RunError> {
         let (mut mesh, info) = cell_mesh_um(&self.s.cell, self.s.seed, &self.s.base_dir)?;
-        let scale = 1e-6 / self.map.length_m;
+        let scale = 1e-6 / self.setup.map.length_m;
         let (sn, cs) = self.s.shear.initial_inclination_deg.to_radians().sin_cos();
         // the generated shape's symmetry axis is y: a rotation about z by θ0 puts its diameter
         // (x) at θ0 from the flow
@@ -533,20 +517,11 @@ impl CellPlan for Plan<'_> {
     fn model_keys(&self) -> ModelKeys<'_> {
         self.s.model.shared()
     }
-    fn map(&self) -> &UnitMapping {
-        &self.map
-    }
-    fn fluid(&self) -> &FluidModel {
-        &self.fluid
+    fn setup(&self) -> &CellSetup {
+        &self.setup
     }
     fn viscosity_ratio(&self) -> f64 {
         self.s.fluid.inner_viscosity_pa_s / self.s.fluid.outer_viscosity_pa_s
-    }
-    fn substeps(&self) -> u32 {
-        self.substeps
-    }
-    fn dt(&self) -> f64 {
-        self.dt
     }
     fn seed(&self) -> u64 {
         self.s.seed
@@ -556,7 +531,7 @@ impl CellPlan for Plan<'_> {
     }
     /// Lees–Edwards boundaries carry the shear rate; plates need none.
     fn sim_config(&self) -> SimConfig {
-        let c = SimConfig::new(self.box_lengths, self.dt, self.s.seed);
+        let c = self.setup.sim_config(self.box_lengths, self.s.seed);
         match self.plates {
             None => c.with_shear_rate(self.rate),
             Some(_) => c,
@@ -572,19 +547,19 @@ pub type ShearSim = CellSim;
 
 fn build(plan: &Plan) -> Result<(ShearSim, Mesh, serde_json::Value), RunError> {
     let (rest, info) = plan.rest_mesh()?;
-    let model = membrane_model(&plan.s.cell, &plan.map, &rest)?;
+    let model = membrane_model(&plan.s.cell, &plan.setup.map, &rest)?;
     check_membrane_timestep(plan, &model, &rest)?;
     let base = match plan.plates {
         Some(shape) => {
             let setup = WallSetup {
                 shape,
-                pair: plan.fluid.pair,
-                density: plan.fluid.density,
-                thickness: plan.fluid.pair.rc,
+                pair: plan.setup.fluid.pair,
+                density: plan.setup.fluid.density,
+                thickness: plan.setup.fluid.pair.rc,
                 equilibration_steps: 200,
             };
             walls::build(
-                &SimConfig::new(plan.box_lengths, plan.dt, plan.s.seed),
+                &SimConfig::new(plan.box_lengths, plan.setup.dt, plan.s.seed),
                 &setup,
                 plan.s.seed,
             )
@@ -593,10 +568,10 @@ fn build(plan: &Plan) -> Result<(ShearSim, Mesh, serde_json::Value), RunError> {
         }
         None => {
             let spec = init::FluidSpec {
-                density: plan.fluid.density,
+                density: plan.setup.fluid.density,
                 ..init::FluidSpec::standard()
             };
-            let field = hemodpd_engine::ForceField::single(plan.fluid.pair);
+            let field = hemodpd_engine::ForceField::single(plan.setup.fluid.pair);
             init::fluid(&plan.sim_config(), &field, &spec, plan.s.seed ^ 0x5EA4).map_err(engine_err)?
         }
     };
@@ -647,10 +622,7 @@ pub struct Run<'a> {
     st: ShearState,
     traj: Option<TrajectoryWriter>,
     mesh_info: serde_json::Value,
-    clock: std::time::Instant,
-    session_step0: u64,
-    session_t0: std::time::Instant,
-    output_s: f64,
+    clock: StepClock,
 }
 
 impl Run<'_> {
@@ -718,7 +690,7 @@ impl Stepper for Run<'_> {
         if self.sim.step_count().is_multiple_of(self.plan.sample_every) {
             let t0 = std::time::Instant::now();
             self.sample()?;
-            self.output_s += t0.elapsed().as_secs_f64();
+            self.clock.output_s += t0.elapsed().as_secs_f64();
         }
         Ok(())
     }
@@ -753,7 +725,7 @@ impl Stepper for Run<'_> {
             .collect();
         w.append_membrane_frame(step, time, x, Some(&vel), &scalars)
             .map_err(out_err)?;
-        self.output_s += t0.elapsed().as_secs_f64();
+        self.clock.output_s += t0.elapsed().as_secs_f64();
         Ok(())
     }
 
@@ -765,8 +737,7 @@ impl Stepper for Run<'_> {
     }
 
     fn save_checkpoint(&mut self, ctx: &RunContext) -> Result<(), RunError> {
-        self.st.stepping_seconds += self.clock.elapsed().as_secs_f64();
-        self.clock = std::time::Instant::now();
+        self.clock.checkpoint(&mut self.st.stepping_seconds);
         let head = CheckpointHead {
             kind: "shear",
             seed: self.plan.s.seed,
@@ -826,7 +797,7 @@ fn membrane_rotation_json(window: &[FrameMotion], rate_si: f64, time_s: f64) -> 
 
 fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let plan = run.plan;
-    let m = &plan.map;
+    let m = &plan.setup.map;
     let (l_um, t_s) = (m.length_m * 1e6, m.time_s);
     let rate_si = plan.s.shear_rate();
     let cell = &run.sim.extension().1;
@@ -876,71 +847,41 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     });
     let y0 = run.st.samples.first().map(|s| s.motion.centroid[1]).unwrap_or(f64::NAN);
     let y1 = run.st.samples.last().map(|s| s.motion.centroid[1]).unwrap_or(f64::NAN);
-    let timers = cell.timers();
-    let secs = run.st.stepping_seconds + run.clock.elapsed().as_secs_f64();
     let steps = run.sim.step_count() as f64;
-    let session_s = run.session_t0.elapsed().as_secs_f64().max(1e-9);
-    let session_steps = (run.sim.step_count() - run.session_step0) as f64;
-    let walls_s = run.sim.extension().0.as_ref().map(|w| w.seconds).unwrap_or(0.0);
-    let sim_s = steps * plan.dt * t_s;
-    Ok(json!({
-        "unit_mapping": {
-            "length_m": m.length_m, "energy_j": m.energy_j, "time_s": m.time_s,
-            "thermal_factor": m.thermal_factor, "warnings": m.warnings,
-            "timestep_s": plan.dt * t_s,
-        },
-        "fluid": units::fluid_json(&plan.fluid, plan.dt),
-        "groups_si": units::groups_si(&plan.sys),
-        "groups_model": units::groups_model(&plan.sys, m, &plan.fluid),
-        "shear": {
-            "driver": plan.s.shear.driver,
-            "shear_rate_per_s": rate_si,
-            "shear_stress_pa": rate_si * plan.s.fluid.outer_viscosity_pa_s,
-            "outer_viscosity_pa_s": plan.s.fluid.outer_viscosity_pa_s,
-            "inner_viscosity_pa_s": plan.s.fluid.inner_viscosity_pa_s,
-            "strain": steps * plan.dt * plan.rate,
-            "analysis_start_strain": plan.s.analysis_start_strain(),
-            "model_shear_rate": plan.rate,
-            "measured_fluid_shear_rate_per_s": mean(&|s| s.fluid_shear_rate) / t_s,
-            "measured_note": "least-squares slope dv_x/dy of the plasma particles, mean over the analysis window (the cell disturbs it locally)",
-        },
-        "motion": analysis,
-        "membrane_rotation": membrane_rotation_json(&window, rate_si, t_s),
-        "cell": {
-            "mean_taylor_deformation": mean(&|s| s.taylor_deformation),
-            "max_abs_area_deviation": a_max,
-            "max_abs_volume_deviation": v_max,
-            "centroid_drift_y_um": (y1 - y0) * l_um,
-        },
-        "model": {
-            "box_rc": plan.box_lengths.to_array(), "particles": run.sim.particles().len(),
-            "vertices": cell.vertices().len(), "timestep": plan.dt,
-        },
-        "membrane_viscosity": membrane_viscosity_summary(
-            plan.s.cell.membrane_viscosity_pa_s_m,
-            plan.sys.shear_modulus_n_per_m,
-            cell_membrane_viscosity(&plan.s.cell, &plan.map).as_ref(),
-            plan.substeps,
-            plan.dt,
-        ),
-        "mesh": run.mesh_info,
-        "crossings": crossings_json(stats),
-        "performance": {
-            "steps": steps,
-            "stepping_seconds": secs,
-            "steps_per_second": steps / secs.max(1e-9),
-            "seconds_per_simulated_second": secs / sim_s.max(1e-300),
-            "seconds_per_unit_strain": secs / (steps * plan.dt * plan.rate).max(1e-300),
-            "threads": rayon::current_num_threads(),
-            "this_session": {
-                "steps": session_steps,
-                "seconds": session_s,
-                "steps_per_second": session_steps / session_s,
-                "share": step_shares(session_s, &timers, walls_s, run.output_s),
-            },
-        },
-        "files": { "time_series": "motion.csv", "trajectory": if plan.frame_every > 0 { json!(TRAJECTORY_FILE) } else { json!(null) } },
-    }))
+    let sim_s = steps * plan.setup.dt * t_s;
+    let mut performance = performance_json(&run.sim, run.st.stepping_seconds, &run.clock);
+    let secs = performance["stepping_seconds"].as_f64().unwrap_or(f64::NAN);
+    performance["seconds_per_simulated_second"] = json!(secs / sim_s.max(1e-300));
+    performance["seconds_per_unit_strain"] = json!(secs / (steps * plan.setup.dt * plan.rate).max(1e-300));
+    let mut out = common_blocks(plan, &stats, &run.mesh_info);
+    out["shear"] = json!({
+        "driver": plan.s.shear.driver,
+        "shear_rate_per_s": rate_si,
+        "shear_stress_pa": rate_si * plan.s.fluid.outer_viscosity_pa_s,
+        "outer_viscosity_pa_s": plan.s.fluid.outer_viscosity_pa_s,
+        "inner_viscosity_pa_s": plan.s.fluid.inner_viscosity_pa_s,
+        "strain": steps * plan.setup.dt * plan.rate,
+        "analysis_start_strain": plan.s.analysis_start_strain(),
+        "model_shear_rate": plan.rate,
+        "measured_fluid_shear_rate_per_s": mean(&|s| s.fluid_shear_rate) / t_s,
+        "measured_note": "least-squares slope dv_x/dy of the plasma particles, mean over the analysis window (the cell disturbs it locally)",
+    });
+    out["motion"] = analysis;
+    out["membrane_rotation"] = membrane_rotation_json(&window, rate_si, t_s);
+    out["cell"] = json!({
+        "mean_taylor_deformation": mean(&|s| s.taylor_deformation),
+        "max_abs_area_deviation": a_max,
+        "max_abs_volume_deviation": v_max,
+        "centroid_drift_y_um": (y1 - y0) * l_um,
+    });
+    out["model"] = json!({
+        "box_rc": plan.box_lengths.to_array(), "particles": run.sim.particles().len(),
+        "vertices": cell.vertices().len(), "timestep": plan.setup.dt,
+    });
+    out["performance"] = performance;
+    out["files"] =
+        json!({ "time_series": "motion.csv", "trajectory": (plan.frame_every > 0).then_some(TRAJECTORY_FILE) });
+    Ok(out)
 }
 
 /// Runs (or, with a checkpoint, resumes) a shear scenario.
@@ -969,7 +910,7 @@ pub fn run_from(
     };
     let traj = if plan.frame_every > 0 {
         let meta = || {
-            RunMetadata::new("shear", plan.toml.clone(), s.seed, plan.map.unit_system())
+            RunMetadata::new("shear", plan.toml.clone(), s.seed, plan.setup.map.unit_system())
                 .with_extra("shear_rate_per_s", MetaValue::F64(s.shear_rate()))
                 .with_extra("particle_types", MetaValue::Str("membrane frames only".into()))
         };
@@ -984,6 +925,7 @@ pub fn run_from(
     } else {
         None
     };
+    let clock = StepClock::start(sim.step_count());
     let mut run = Run {
         plan: &plan,
         sim,
@@ -992,14 +934,10 @@ pub fn run_from(
         st,
         traj,
         mesh_info: info,
-        clock: std::time::Instant::now(),
-        session_step0: 0,
-        session_t0: std::time::Instant::now(),
-        output_s: 0.0,
+        clock,
     };
-    run.session_step0 = run.sim.step_count();
     if ctx.progress {
-        for w in &plan.map.warnings {
+        for w in &plan.setup.map.warnings {
             eprintln!("warning: {w}");
         }
     }
@@ -1108,10 +1046,7 @@ impl crate::kind::Kind for ShearScenario {
         self.base_dir = dir;
     }
     fn check_files(&self, file: &str) -> Result<(), ScenarioError> {
-        match &self.cell.mesh_file {
-            Some(m) => crate::kind::check_mesh_file(file, "cell.mesh_file", &self.base_dir, m, self.cell.vertices),
-            None => Ok(()),
-        }
+        self.cell.check_mesh_file(file, &self.base_dir)
     }
     fn schedule_end(&self) -> (u64, &'static str) {
         (Plan::new(self).map(|p| p.steps).unwrap_or(u64::MAX), "steps")

@@ -17,18 +17,18 @@ pub use measures::{
 };
 
 use crate::cell::build::{
-    cell_membrane_viscosity, cell_mesh_um, check_membrane_timestep, membrane_model, place_cell, CellPlan,
+    cell_membrane_viscosity, cell_mesh_um, check_membrane_timestep, membrane_model, place_cell, CellPlan, CellSetup,
 };
 use crate::cell::checkpoint::{open_cell_trajectory, restore_cell_run, save_cell_run, CheckpointHead, Restored};
 use crate::cell::placement::{capsule_radius, press_into_tube, CAPSULE_MARGIN, CLEARANCE_RC};
-use crate::cell::section::{cell_mapping, cell_params, resolve_substeps, validate_cell, validate_model, ModelKeys};
-use crate::cell::summary::{crossings_json, membrane_viscosity_summary, step_shares};
-use crate::cell::{CellOrientation, CellSection, CellSim, VERTEX_MASS};
+use crate::cell::section::{cell_mapping, cell_params, validate_cell, validate_model, ModelKeys};
+use crate::cell::summary::{common_blocks, performance_json, StepClock};
+use crate::cell::{CellOrientation, CellSection, CellSim};
 use crate::context::{RunContext, RunError};
 use crate::driver::{self, Stepper};
 use crate::file::ScenarioError;
 use crate::run_dir::{engine_err, out_err, TRAJECTORY_FILE};
-use crate::units::{self, um_to_m, FluidDecision, FluidModel, PhysicalSystem, UnitMapping, MMHG_PER_MM_IN_PA_PER_M};
+use crate::units::{self, um_to_m, FluidDecision, FluidModel, PhysicalSystem, MMHG_PER_MM_IN_PA_PER_M};
 use glam::DVec3;
 use hemodpd_engine::walls::{self, WallSetup, WallShape};
 use hemodpd_engine::SimConfig;
@@ -430,10 +430,8 @@ pub fn validate(s: &CapillaryScenario, file: &str) -> Result<(), ScenarioError> 
 /// Everything derived from the file: the mapping and the model-unit geometry.
 pub struct Plan<'a> {
     pub s: &'a CapillaryScenario,
-    pub sys: PhysicalSystem,
-    pub map: UnitMapping,
-    pub fluid: FluidModel,
-    pub dt: f64,
+    /// The system, the fluid and mapping chosen for it, the time step and the sub-steps.
+    pub setup: CellSetup,
     /// Tube radius (the physical one mapped) and length, rc.
     pub radius: f64,
     /// Radius of the wall surface, rc: the effective no-slip radius of the flow is `radius`
@@ -445,15 +443,13 @@ pub struct Plan<'a> {
     /// Steps of each stage (its longest duration).
     pub stage_steps: Vec<u64>,
     pub frame_every: u64,
-    /// Membrane sub-steps per fluid step (`model.membrane_substeps`, resolved).
-    pub substeps: u32,
     toml: String,
 }
 
 impl<'a> Plan<'a> {
     pub fn new(s: &'a CapillaryScenario) -> Result<Self, RunError> {
-        let (sys, FluidDecision { fluid, map, .. }) = s.mapping()?;
-        let dt = s.model.timestep.unwrap_or(fluid.default_timestep(&sys, &map));
+        let setup = CellSetup::new(s.physical()?, s.model.shared(), &s.cell)?;
+        let (map, fluid, dt) = (&setup.map, &setup.fluid, setup.dt);
         let radius = map.length_to_model(0.5 * s.tube.diameter_m());
         let length = map.length_to_model(s.tube.length_m());
         let rc = fluid.pair.rc;
@@ -473,18 +469,9 @@ impl<'a> Plan<'a> {
         } else {
             0
         };
-        let substeps = resolve_substeps(
-            &s.model.membrane_substeps,
-            cell_membrane_viscosity(&s.cell, &map).as_ref(),
-            dt,
-            VERTEX_MASS,
-        );
         Ok(Plan {
             s,
-            sys,
-            map,
-            fluid,
-            dt,
+            setup,
             radius,
             wall_radius: wall_r,
             length,
@@ -492,7 +479,6 @@ impl<'a> Plan<'a> {
             shape,
             stage_steps,
             frame_every,
-            substeps,
             toml: toml::to_string(s).unwrap_or_default(),
         })
     }
@@ -516,7 +502,7 @@ impl<'a> Plan<'a> {
     /// axis along the tube), centred on the axis.
     fn rest_mesh(&self) -> Result<(Mesh, serde_json::Value), RunError> {
         let (mut mesh, info) = self.mesh_um()?;
-        let scale = 1e-6 / self.map.length_m;
+        let scale = 1e-6 / self.setup.map.length_m;
         let c = self.cell_centre();
         let turn = self.s.tube.cell_orientation.turn(self.s.seed);
         for v in mesh.vertices.iter_mut() {
@@ -532,7 +518,7 @@ impl<'a> Plan<'a> {
     fn start_positions(&self, model: &MembraneModel, rest: &Mesh) -> Result<(Vec<DVec3>, serde_json::Value), RunError> {
         let c = self.cell_centre();
         let centre = [c.x, c.y];
-        let rc = self.fluid.pair.rc;
+        let rc = self.setup.fluid.pair.rc;
         let range = self.s.model.wall_repulsion_range_rc * rc;
         let orientation = serde_json::to_value(self.s.tube.cell_orientation).unwrap_or_default();
         let widest = hemodpd_membrane::confine::widest(&rest.vertices, centre);
@@ -549,23 +535,23 @@ impl<'a> Plan<'a> {
     }
 
     fn model(&self, rest: &Mesh) -> Result<MembraneModel, RunError> {
-        membrane_model(&self.s.cell, &self.map, rest)
+        membrane_model(&self.s.cell, &self.setup.map, rest)
     }
 
     /// The membrane viscosity in model units (Fedosov's γ_C = γ_T/3), or `None` when
     /// `cell.membrane_viscosity_pa_s_m` is 0.
     pub fn membrane_viscosity(&self) -> Option<MembraneViscosity> {
-        cell_membrane_viscosity(&self.s.cell, &self.map)
+        cell_membrane_viscosity(&self.s.cell, &self.setup.map)
     }
 
     /// Body force per fluid particle (model) for a pressure gradient (SI): f = ∇p/n.
     fn body_force_for_gradient(&self, g_pa_per_m: f64) -> f64 {
-        self.map.pressure_gradient_to_model(g_pa_per_m) / self.fluid.density
+        self.setup.map.pressure_gradient_to_model(g_pa_per_m) / self.setup.fluid.density
     }
 
     /// Poiseuille body force for a mean velocity U (model): f = 8ηU/(nR²).
     fn poiseuille_force(&self, u: f64) -> f64 {
-        8.0 * self.fluid.viscosity * u / (self.fluid.density * self.radius * self.radius)
+        8.0 * self.setup.fluid.viscosity * u / (self.setup.fluid.density * self.radius * self.radius)
     }
 }
 
@@ -576,20 +562,11 @@ impl CellPlan for Plan<'_> {
     fn model_keys(&self) -> ModelKeys<'_> {
         self.s.model.shared()
     }
-    fn map(&self) -> &UnitMapping {
-        &self.map
-    }
-    fn fluid(&self) -> &FluidModel {
-        &self.fluid
+    fn setup(&self) -> &CellSetup {
+        &self.setup
     }
     fn viscosity_ratio(&self) -> f64 {
         self.s.plasma.viscosity_ratio
-    }
-    fn substeps(&self) -> u32 {
-        self.substeps
-    }
-    fn dt(&self) -> f64 {
-        self.dt
     }
     fn seed(&self) -> u64 {
         self.s.seed
@@ -598,7 +575,7 @@ impl CellPlan for Plan<'_> {
         self.box_lengths
     }
     fn sim_config(&self) -> SimConfig {
-        SimConfig::new(self.box_lengths, self.dt, self.s.seed)
+        self.setup.sim_config(self.box_lengths, self.s.seed)
     }
     fn wall_shape(&self) -> Option<WallShape> {
         Some(self.shape)
@@ -642,9 +619,9 @@ fn build(plan: &Plan) -> Result<(CapillarySim, Mesh, serde_json::Value), RunErro
     info["placement"] = placement;
     let setup = WallSetup {
         shape: plan.shape,
-        pair: plan.fluid.pair,
-        density: plan.fluid.density,
-        thickness: plan.fluid.pair.rc,
+        pair: plan.setup.fluid.pair,
+        density: plan.setup.fluid.density,
+        thickness: plan.setup.fluid.pair.rc,
         equilibration_steps: 200,
     };
     let (_, base) = walls::build(&plan.sim_config(), &setup, plan.s.seed).map_err(engine_err)?;
@@ -781,12 +758,7 @@ pub struct Run<'a> {
     traj: Option<TrajectoryWriter>,
     grid: GridSpec,
     mesh_info: serde_json::Value,
-    clock: std::time::Instant,
-    /// This session (since the run started or resumed): its first step, its start, and the
-    /// seconds spent sampling and writing frames.
-    session_step0: u64,
-    session_t0: std::time::Instant,
-    output_s: f64,
+    clock: StepClock,
 }
 
 impl Run<'_> {
@@ -802,7 +774,7 @@ impl Run<'_> {
             Drive::Off => (0.0, None),
             Drive::PressureGradient(g) => (plan.body_force_for_gradient(g), None),
             Drive::MeanVelocity(u) => {
-                let um = plan.map.velocity_to_model(u);
+                let um = plan.setup.map.velocity_to_model(u);
                 (
                     plan.poiseuille_force(um),
                     Some(Controller {
@@ -824,7 +796,7 @@ impl Run<'_> {
         let f_n = self.stage().stretch_force_n.unwrap_or(0.0);
         let forces = if f_n > 0.0 {
             let (high, low) = hemodpd_membrane::stretch::loaded_vertices(&self.rest.vertices, STRETCH_END_FRACTION);
-            let f = self.plan.map.force_to_model(f_n);
+            let f = self.plan.setup.map.force_to_model(f_n);
             let mut v: Vec<(u32, DVec3)> = high
                 .iter()
                 .map(|&k| (k as u32, DVec3::new(f / high.len() as f64, 0.0, 0.0)))
@@ -868,10 +840,13 @@ impl Run<'_> {
         c.window_steps += 1;
         if c.window_steps >= every {
             let mean = c.window_sum / c.window_steps as f64;
-            let (eta, nr2) = (plan.fluid.viscosity, plan.fluid.density * plan.radius * plan.radius);
+            let (eta, nr2) = (
+                plan.setup.fluid.viscosity,
+                plan.setup.fluid.density * plan.radius * plan.radius,
+            );
             let tau_v = nr2 / (eta * 2.404_825_557_695_773_f64.powi(2));
             let e = c.target - mean;
-            c.integral += e * every as f64 * plan.dt / tau_v;
+            c.integral += e * every as f64 * plan.setup.dt / tau_v;
             self.st.body_force = 8.0 * eta / nr2 * (e + c.integral);
             c.window_sum = 0.0;
             c.window_steps = 0;
@@ -897,7 +872,8 @@ impl Run<'_> {
         }
         let plan = self.plan;
         let window_s = st.steady_window_s.unwrap_or(0.1 * st.duration_s);
-        let w = (plan.map.time_to_model(window_s) / plan.dt / plan.s.output.sample_every_steps as f64).round() as usize;
+        let w = (plan.setup.map.time_to_model(window_s) / plan.setup.dt / plan.s.output.sample_every_steps as f64)
+            .round() as usize;
         let w = w.max(2);
         let cur: Vec<&Sample> = self.st.samples.iter().filter(|s| s.stage == self.st.stage).collect();
         if cur.len() < 2 * w {
@@ -905,8 +881,12 @@ impl Run<'_> {
         }
         let (a, b) = (&cur[cur.len() - 2 * w..cur.len() - w], &cur[cur.len() - w..]);
         let mean = |s: &[&Sample], f: &dyn Fn(&Sample) -> f64| s.iter().map(|x| f(x)).sum::<f64>() / s.len() as f64;
-        let u = plan.map.velocity_to_model(plan.s.characteristic_velocity()).max(1e-12);
-        let d0 = plan.map.length_to_model(plan.sys.cell_diameter_m);
+        let u = plan
+            .setup
+            .map
+            .velocity_to_model(plan.s.characteristic_velocity())
+            .max(1e-12);
+        let d0 = plan.setup.map.length_to_model(plan.setup.sys.cell_diameter_m);
         let measures: [(Measure, f64); 4] = [
             (&|s| s.cell_velocity, u),
             (&|s| s.fluid_velocity, u),
@@ -962,7 +942,7 @@ impl Stepper for Run<'_> {
         let done_in_stage = step - self.st.stage_start;
         if step.is_multiple_of(plan.s.output.sample_every_steps) {
             let t_obs = std::time::Instant::now();
-            let t = done_in_stage as f64 * plan.dt;
+            let t = done_in_stage as f64 * plan.setup.dt;
             let smp = observe(plan, &self.sim, &self.profile, self.st.stage, t, self.st.body_force);
             if !(smp.shape.axial_length.is_finite() && smp.area_deviation.is_finite()) {
                 return Err(RunError::Engine(format!(
@@ -973,7 +953,7 @@ impl Stepper for Run<'_> {
             if plan.frame_every > 0 {
                 self.accumulate_field();
             }
-            self.output_s += t_obs.elapsed().as_secs_f64();
+            self.clock.output_s += t_obs.elapsed().as_secs_f64();
         }
         let stage_over = done_in_stage >= plan.stage_steps[self.st.stage];
         let steady = step.is_multiple_of(plan.s.output.sample_every_steps) && self.steady();
@@ -998,7 +978,7 @@ impl Stepper for Run<'_> {
     fn write_frame(&mut self) -> Result<(), RunError> {
         let t0 = std::time::Instant::now();
         let r = self.write_frame_inner();
-        self.output_s += t0.elapsed().as_secs_f64();
+        self.clock.output_s += t0.elapsed().as_secs_f64();
         r
     }
 
@@ -1088,8 +1068,7 @@ impl Run<'_> {
     }
 
     fn save(&mut self, ctx: &RunContext) -> Result<(), RunError> {
-        self.st.stepping_seconds += self.clock.elapsed().as_secs_f64();
-        self.clock = std::time::Instant::now();
+        self.clock.checkpoint(&mut self.st.stepping_seconds);
         let head = CheckpointHead {
             kind: "capillary",
             seed: self.plan.s.seed,
@@ -1127,16 +1106,16 @@ fn tail_mean(samples: &[&Sample], f: impl Fn(&Sample) -> f64) -> f64 {
 /// stops on an error: what was measured up to it is kept).
 fn write_time_series(run: &Run, ctx: &RunContext) -> Result<(), RunError> {
     let plan = run.plan;
-    let m = &plan.map;
+    let m = &plan.setup.map;
     let (l, v, t) = (m.length_m * 1e6, m.velocity_to_si(1.0), m.time_s);
-    let fluid_kbt = plan.fluid.pair.kbt;
+    let fluid_kbt = plan.setup.fluid.pair.kbt;
     let mut csv = String::from(
         "time_s,stage,stage_time_s,cell_velocity_m_per_s,fluid_velocity_m_per_s,axial_length_um,max_radius_um,deformation_index,concavity_depth_um,distance_from_rest_um,area_deviation,volume_deviation,membrane_temperature_ratio,body_force_n,length_over_width,silhouette_width_um,silhouette_deformation_index,symmetry_axis_tilt_deg,axis_offset_um,cross_section_roundness\n",
     );
     for s in &run.st.samples {
         csv += &format!(
             "{:e},{},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e},{:e}\n",
-            s.step as f64 * plan.dt * t,
+            s.step as f64 * plan.setup.dt * t,
             s.stage,
             s.stage_time * t,
             s.cell_velocity * v,
@@ -1165,11 +1144,11 @@ fn write_time_series(run: &Run, ctx: &RunContext) -> Result<(), RunError> {
 
 fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let plan = run.plan;
-    let m = &plan.map;
+    let m = &plan.setup.map;
     let (l, v, t) = (m.length_m * 1e6, m.velocity_to_si(1.0), m.time_s);
     let cell = &run.sim.extension().1;
     let stats = cell.stats();
-    let fluid_kbt = plan.fluid.pair.kbt;
+    let fluid_kbt = plan.setup.fluid.pair.kbt;
     let mut stages = Vec::new();
     write_time_series(run, ctx)?;
     for (k, st) in plan.s.stage.iter().enumerate() {
@@ -1195,7 +1174,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
         };
         stages.push(json!({
             "name": st.name,
-            "duration_s": steps as f64 * plan.dt * t,
+            "duration_s": steps as f64 * plan.setup.dt * t,
             "ended_steady": steady,
             "drive": match st.drive() {
                 Drive::Off => json!("off"),
@@ -1218,7 +1197,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
                 "distance_from_rest_um": tail_mean(&smp, |s| s.shape.distance_from_rest) * l,
                 "membrane_temperature_ratio": tail_mean(&smp, |s| s.membrane_kbt) / fluid_kbt,
                 "body_force_n": tail_mean(&smp, |s| s.body_force) * m.force_unit_n(),
-                "pressure_gradient_pa_per_m": m.pressure_gradient_to_si(tail_mean(&smp, |s| s.body_force) * plan.fluid.density),
+                "pressure_gradient_pa_per_m": m.pressure_gradient_to_si(tail_mean(&smp, |s| s.body_force) * plan.setup.fluid.density),
             },
             "recovery_time_s": {
                 "distance_from_rest": decay_time(&ts, &dist),
@@ -1249,58 +1228,24 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             d
         })
         .unwrap_or(serde_json::Value::Null);
-    let timers = cell.timers();
-    let secs = run.st.stepping_seconds + run.clock.elapsed().as_secs_f64();
-    let steps = run.sim.step_count() as f64;
-    let session_s = run.session_t0.elapsed().as_secs_f64().max(1e-9);
-    let session_steps = (run.sim.step_count() - run.session_step0) as f64;
-    let walls_s = run.sim.extension().0.as_ref().map_or(0.0, |w| w.seconds);
-    let visc = plan.membrane_viscosity();
-    let visc_summary = membrane_viscosity_summary(
-        plan.s.cell.membrane_viscosity_pa_s_m,
-        plan.sys.shear_modulus_n_per_m,
-        visc.as_ref(),
-        plan.substeps,
-        plan.dt,
-    );
-    Ok(json!({
-        "unit_mapping": {
-            "length_m": m.length_m, "energy_j": m.energy_j, "time_s": m.time_s,
-            "thermal_factor": m.thermal_factor, "warnings": m.warnings,
-            "timestep_s": plan.dt * t,
-        },
-        "fluid": units::fluid_json(&plan.fluid, plan.dt),
-        "groups_si": units::groups_si(&plan.sys),
-        "groups_model": units::groups_model(&plan.sys, m, &plan.fluid),
-        "model": {
-            "tube_radius_rc": plan.radius, "tube_length_rc": plan.length, "box_rc": plan.box_lengths.to_array(),
-            "particles": run.sim.particles().len(), "vertices": cell.vertices().len(), "timestep": plan.dt,
-        },
-        "membrane_viscosity": visc_summary,
-        "mesh": run.mesh_info,
-        "stages": stages,
-        "driven": driven,
-        "crossings": crossings_json(stats),
-        "performance": {
-            "steps": steps,
-            "stepping_seconds": secs,
-            "steps_per_second": steps / secs.max(1e-9),
-            "threads": rayon::current_num_threads(),
-            "this_session": {
-                "steps": session_steps,
-                "seconds": session_s,
-                "steps_per_second": session_steps / session_s,
-                "share": step_shares(session_s, &timers, walls_s, run.output_s),
-                "note": "shares of this session's wall time (since the run started or resumed); the fluid's pair forces, the integrator and the cell lists are the remainder",
-            },
-        },
-        "files": { "time_series": "cell.csv", "trajectory": if plan.frame_every > 0 { json!(TRAJECTORY_FILE) } else { json!(null) } },
-    }))
+    let mut out = common_blocks(plan, &stats, &run.mesh_info);
+    let mut performance = performance_json(&run.sim, run.st.stepping_seconds, &run.clock);
+    performance["this_session"]["note"] = json!("shares of this session's wall time (since the run started or resumed); the fluid's pair forces, the integrator and the cell lists are the remainder");
+    out["model"] = json!({
+        "tube_radius_rc": plan.radius, "tube_length_rc": plan.length, "box_rc": plan.box_lengths.to_array(),
+        "particles": run.sim.particles().len(), "vertices": cell.vertices().len(), "timestep": plan.setup.dt,
+    });
+    out["stages"] = json!(stages);
+    out["driven"] = driven;
+    out["performance"] = performance;
+    out["files"] =
+        json!({ "time_series": "cell.csv", "trajectory": (plan.frame_every > 0).then_some(TRAJECTORY_FILE) });
+    Ok(out)
 }
 
 /// Model → SI units of a capillary run (for the trajectory).
 fn unit_system(plan: &Plan) -> UnitSystem {
-    plan.map.unit_system()
+    plan.setup.map.unit_system()
 }
 
 /// Runs (or, with a checkpoint, resumes) a capillary scenario.
@@ -1340,9 +1285,10 @@ pub fn run_from(
     } else {
         None
     };
-    let scale = 1e-6 / plan.map.length_m;
+    let scale = 1e-6 / plan.setup.map.length_m;
     let profile = RestProfile::new(&EvansFung::healthy_um().scaled(scale), 400);
     let grid = field_grid(&plan);
+    let clock = StepClock::start(sim.step_count());
     let mut run = Run {
         plan: &plan,
         sim,
@@ -1352,19 +1298,15 @@ pub fn run_from(
         traj,
         grid,
         mesh_info: info,
-        clock: std::time::Instant::now(),
-        session_step0: 0,
-        session_t0: std::time::Instant::now(),
-        output_s: 0.0,
+        clock,
     };
-    run.session_step0 = run.sim.step_count();
     let resumed = checkpoint.is_some();
     if !resumed {
         run.start_stage()?;
     } else if run.st.stage < plan.s.stage.len() {
         run.apply_stretch()?;
     }
-    for w in &plan.map.warnings {
+    for w in &plan.setup.map.warnings {
         if ctx.progress {
             eprintln!("warning: {w}");
         }
@@ -1411,10 +1353,7 @@ impl crate::kind::Kind for CapillaryScenario {
         self.base_dir = dir;
     }
     fn check_files(&self, file: &str) -> Result<(), ScenarioError> {
-        match &self.cell.mesh_file {
-            Some(m) => crate::kind::check_mesh_file(file, "cell.mesh_file", &self.base_dir, m, self.cell.vertices),
-            None => Ok(()),
-        }
+        self.cell.check_mesh_file(file, &self.base_dir)
     }
     /// Steps of the longest schedule (stages that end when steady end earlier).
     fn schedule_end(&self) -> (u64, &'static str) {

@@ -2,12 +2,12 @@
 //! and its dry run, the wall and cell configurations, and the simulation assembled from an
 //! equilibrated fluid (with walls or without) and the resting mesh.
 
-use super::section::{cell_params, CellSection, ModelKeys, ViscosityForm};
+use super::section::{cell_mapping, cell_params, resolve_substeps, CellSection, ModelKeys, ViscosityForm};
 use super::{INNER, MEMBRANE, OUTER, VERTEX_MASS, WALL};
 use crate::context::RunError;
 use crate::mesh_cache;
 use crate::run_dir::engine_err;
-use crate::units::{self, FluidModel, UnitMapping};
+use crate::units::{self, FluidDecision, FluidModel, PhysicalSystem, UnitMapping};
 use glam::DVec3;
 use hemodpd_engine::walls::{self, Reflection, WallConfig, WallShape, Walls};
 use hemodpd_engine::{ForceField, PairParams, Particles, SimConfig, Simulation, Timed, TypeSpec};
@@ -20,22 +20,52 @@ use serde_json::json;
 /// The simulation of a cell-in-flow run: walls (none in unbounded shear) and the cell.
 pub type CellSim = Simulation<(Option<Timed<Walls>>, Cell)>;
 
+/// What every cell-in-flow plan holds besides its own geometry and schedule: the physical
+/// system, the fluid chosen for it with the unit mapping, the time step and the sub-steps.
+#[derive(Clone, Debug)]
+pub struct CellSetup {
+    pub sys: PhysicalSystem,
+    pub map: UnitMapping,
+    pub fluid: FluidModel,
+    /// Fluid time step, model units (`model.timestep`, or the chosen fluid's default).
+    pub dt: f64,
+    /// Membrane sub-steps per fluid step (`model.membrane_substeps`, resolved).
+    pub substeps: u32,
+}
+
+impl CellSetup {
+    /// The fluid and unit mapping for `sys` under the `[model]` keys, then the time step and
+    /// the membrane sub-steps that follow from them and from the cell's membrane viscosity.
+    pub(crate) fn new(sys: PhysicalSystem, keys: ModelKeys<'_>, cell: &CellSection) -> Result<Self, RunError> {
+        let FluidDecision { fluid, map, .. } = cell_mapping(&sys, keys)?;
+        let dt = keys.timestep.unwrap_or(fluid.default_timestep(&sys, &map));
+        let visc = cell_membrane_viscosity(cell, &map);
+        let substeps = resolve_substeps(keys.membrane_substeps, visc.as_ref(), dt, VERTEX_MASS);
+        Ok(Self {
+            sys,
+            map,
+            fluid,
+            dt,
+            substeps,
+        })
+    }
+
+    /// The engine configuration of a run in a box of `box_lengths` (rc).
+    pub(crate) fn sim_config(&self, box_lengths: DVec3, seed: u64) -> SimConfig {
+        SimConfig::new(box_lengths, self.dt, seed)
+    }
+}
+
 /// What the family needs from a kind's plan to build, check and restore its cell.
 pub(crate) trait CellPlan {
     /// The `[cell]` section.
     fn cell(&self) -> &CellSection;
     /// The shared `[model]` keys.
     fn model_keys(&self) -> ModelKeys<'_>;
-    /// The unit mapping.
-    fn map(&self) -> &UnitMapping;
-    /// The fluid model (model units).
-    fn fluid(&self) -> &FluidModel;
+    /// The system, fluid, mapping, time step and sub-steps.
+    fn setup(&self) -> &CellSetup;
     /// Inner (cytosol) over outer viscosity.
     fn viscosity_ratio(&self) -> f64;
-    /// Membrane sub-steps per fluid step (resolved).
-    fn substeps(&self) -> u32;
-    /// Fluid time step, model units.
-    fn dt(&self) -> f64;
     /// The scenario's seed.
     fn seed(&self) -> u64;
     /// The box, rc.
@@ -44,6 +74,23 @@ pub(crate) trait CellPlan {
     fn sim_config(&self) -> SimConfig;
     /// The walls' shape (None: no walls).
     fn wall_shape(&self) -> Option<WallShape>;
+
+    /// The unit mapping.
+    fn map(&self) -> &UnitMapping {
+        &self.setup().map
+    }
+    /// The fluid model (model units).
+    fn fluid(&self) -> &FluidModel {
+        &self.setup().fluid
+    }
+    /// Membrane sub-steps per fluid step (resolved).
+    fn substeps(&self) -> u32 {
+        self.setup().substeps
+    }
+    /// Fluid time step, model units.
+    fn dt(&self) -> f64 {
+        self.setup().dt
+    }
 }
 
 /// The membrane viscosity of a `[cell]` section in model units (None when 0: the paper's model).

@@ -85,6 +85,17 @@ pub struct CellSection {
     pub membrane_viscosity_form: ViscosityForm,
 }
 
+impl CellSection {
+    /// Checks `cell.mesh_file`, if one is given (relative to `base`): it exists, reads, and has
+    /// `cell.vertices` vertices.
+    pub(crate) fn check_mesh_file(&self, file: &str, base: &std::path::Path) -> Result<(), crate::file::ScenarioError> {
+        match &self.mesh_file {
+            Some(m) => crate::kind::check_mesh_file(file, "cell.mesh_file", base, m, self.vertices),
+            None => Ok(()),
+        }
+    }
+}
+
 /// How the membrane viscosity η_m is split into link friction (docs/model.md §7b).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "kebab-case")]

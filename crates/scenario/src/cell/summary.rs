@@ -1,10 +1,13 @@
-//! The blocks every cell-in-flow kind writes into `summary.json`: membrane viscosity,
-//! crossings, and the shares of a step's time.
+//! The blocks every cell-in-flow kind writes into `summary.json`: the unit mapping and fluid,
+//! membrane viscosity, crossings, and the run's performance with the shares of a step's time.
 
+use super::build::{cell_membrane_viscosity, CellPlan, CellSetup, CellSim};
 use super::VERTEX_MASS;
+use crate::units;
 use hemodpd_membrane::coupling::{CellStats, CellTimers};
 use hemodpd_membrane::viscosity::MembraneViscosity;
 use serde_json::json;
+use std::time::Instant;
 
 /// The `membrane_viscosity` block of a cell run's summary: η_m in SI and model units, the
 /// friction coefficients, the sub-steps, and the effective link friction of the scheme
@@ -59,5 +62,97 @@ pub(crate) fn step_shares(session_s: f64, timers: &CellTimers, walls_s: f64, out
         "walls": walls_s / session_s,
         "crossing_checks": timers.checks_s / session_s,
         "sampling_and_frames": output_s / session_s,
+    })
+}
+
+/// The blocks of `summary.json` that every cell run writes alike: `unit_mapping`, `fluid`,
+/// `groups_si`, `groups_model`, `membrane_viscosity`, `mesh` and `crossings`. A kind adds its own
+/// blocks to the returned object (`out["model"] = …`).
+pub(crate) fn common_blocks(
+    plan: &impl CellPlan,
+    stats: &CellStats,
+    mesh_info: &serde_json::Value,
+) -> serde_json::Value {
+    let CellSetup {
+        sys,
+        map: m,
+        fluid,
+        dt,
+        substeps,
+    } = plan.setup();
+    let visc = cell_membrane_viscosity(plan.cell(), m);
+    json!({
+        "unit_mapping": {
+            "length_m": m.length_m, "energy_j": m.energy_j, "time_s": m.time_s,
+            "thermal_factor": m.thermal_factor, "warnings": m.warnings,
+            "timestep_s": dt * m.time_s,
+        },
+        "fluid": units::fluid_json(fluid, *dt),
+        "groups_si": units::groups_si(sys),
+        "groups_model": units::groups_model(sys, m, fluid),
+        "membrane_viscosity": membrane_viscosity_summary(
+            plan.cell().membrane_viscosity_pa_s_m,
+            sys.shear_modulus_n_per_m,
+            visc.as_ref(),
+            *substeps,
+            *dt,
+        ),
+        "mesh": mesh_info,
+        "crossings": crossings_json(stats),
+    })
+}
+
+/// A cell run's clocks: stepping time since the last checkpoint (the time before it is saved in
+/// the checkpoint), this session's start (step and instant), and its seconds in sampling and
+/// frames.
+pub(crate) struct StepClock {
+    since_checkpoint: Instant,
+    session_step0: u64,
+    session_t0: Instant,
+    /// Seconds of this session spent sampling and writing frames.
+    pub output_s: f64,
+}
+
+impl StepClock {
+    /// Clocks started now, for a session that starts at `step`.
+    pub fn start(step: u64) -> Self {
+        let now = Instant::now();
+        Self {
+            since_checkpoint: now,
+            session_step0: step,
+            session_t0: now,
+            output_s: 0.0,
+        }
+    }
+
+    /// At a checkpoint: adds the stepping time since the last one to `saved_s` (what the
+    /// checkpoint stores) and restarts that clock.
+    pub fn checkpoint(&mut self, saved_s: &mut f64) {
+        *saved_s += self.since_checkpoint.elapsed().as_secs_f64();
+        self.since_checkpoint = Instant::now();
+    }
+}
+
+/// The `performance` block of a cell run's summary: steps, stepping seconds (`saved_s` from the
+/// last checkpoint on) and rate over the whole run, and this session's steps, seconds, rate
+/// and the shares of its time ([`step_shares`]).
+pub(crate) fn performance_json(sim: &CellSim, saved_s: f64, clock: &StepClock) -> serde_json::Value {
+    let timers = sim.extension().1.timers();
+    let secs = saved_s + clock.since_checkpoint.elapsed().as_secs_f64();
+    let steps = sim.step_count() as f64;
+    let session_s = clock.session_t0.elapsed().as_secs_f64().max(1e-9);
+    let session_steps = (sim.step_count() - clock.session_step0) as f64;
+    let walls_s = sim.extension().0.as_ref().map_or(0.0, |w| w.seconds);
+    json!({
+        "steps": steps,
+        "stepping_seconds": secs,
+        "steps_per_second": steps / secs.max(1e-9),
+        "threads": rayon::current_num_threads(),
+        "this_session": {
+            "steps": session_steps,
+            "seconds": session_s,
+            "steps_per_second": session_steps / session_s,
+            "share": step_shares(session_s, &timers, walls_s, clock.output_s),
+        },
     })
 }
