@@ -208,3 +208,30 @@ fn sweep_runs_every_combination_and_tabulates_the_kinds_figures() {
             .exists());
     }
 }
+
+/// Stretching with the spheroidal stress-free reference (`membrane.reference = { spheroid = {
+/// reduced_volume = 0.95 } }`, docs/model.md §4) against the resting-cell reference, over Mills
+/// 2004's forces: the summary names the reference; at rest the cell keeps its diameter (within
+/// 2 %: the spheroid's rest shape is 0.06 µm RMS from Evans–Fung, the resting-cell
+/// reference's 0.08 µm); the RMS deviation from Mills (D_A and D_T together) is 0.887 µm with
+/// either reference (measured), asserted within 0.05 µm of each other and below 1 µm.
+#[test]
+fn stretching_with_a_spheroidal_reference() {
+    let scenario = concat!(env!("CARGO_MANIFEST_DIR"), "/scenarios/stretching.toml");
+    let run = |reference: &str| {
+        let dir = tempfile::tempdir().unwrap();
+        let set = format!("membrane.reference={reference}");
+        let out = hemodpd(&["run", scenario, "--set", &set, "--out", dir.path().to_str().unwrap(), "--quiet"]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let j: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap()).unwrap();
+        j
+    };
+    let (plain, sph) = (run("\"stress-free\""), run("{spheroid={reduced_volume=0.95}}"));
+    assert_eq!(sph["scenario"]["membrane"]["reference"]["spheroid"]["reduced_volume"], 0.95);
+    let f = |j: &serde_json::Value, p: &str| j["results"].pointer(p).and_then(|v| v.as_f64()).unwrap();
+    let (d0, d1) = (f(&plain, "/axial_diameter_um/0"), f(&sph, "/axial_diameter_um/0"));
+    assert!((d1 / d0 - 1.0).abs() < 0.02, "rest D_A {d1} µm against {d0} µm");
+    let (r0, r1) = (f(&plain, "/mills2004/rms_both_um"), f(&sph, "/mills2004/rms_both_um"));
+    assert!((r1 - r0).abs() < 0.05 && r1 < 1.0, "RMS from Mills {r1} µm against {r0} µm");
+}

@@ -85,8 +85,9 @@ pub enum ForceError {
     },
 }
 
-/// Which reference state the in-plane energy uses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, Serialize, Deserialize)]
+/// Which reference state the in-plane energy uses. In a scenario file: `"stress-free"`,
+/// `"uniform"`, or `{ spheroid = { reduced_volume = 0.95 } }`.
+#[derive(Clone, Copy, Debug, PartialEq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ReferenceState {
     /// The paper's convention: one L0 for every link, Lmax = 3.17 L0, one C from Eq. 4.
@@ -95,6 +96,13 @@ pub enum ReferenceState {
     /// per-triangle C): the in-plane force at rest is zero to round-off.
     #[default]
     StressFree,
+    /// Every link and triangle unstrained on the oblate spheroid of the resting cell's area and
+    /// this reduced volume (0 < v ≤ 1; the biconcave cell's is 0.64): the stress-free
+    /// construction on [`crate::reference::spheroid_reference`], with A0 and V0 still the resting
+    /// cell's. The cell at rest is then what bending, this reference and the constraints settle
+    /// on.
+    #[serde(rename_all = "snake_case")]
+    Spheroid { reduced_volume: f64 },
 }
 
 /// Membrane constants in the caller's units.
@@ -497,6 +505,49 @@ impl MembraneModel {
         Ok(model)
     }
 
+    /// The stress-free construction ([`Self::stress_free`]) on the reference positions
+    /// `reference` (the zero of the in-plane energy), with A0 and V0 those of `rest`, the
+    /// resting cell. Both must be positions of the same mesh.
+    pub fn stress_free_on(
+        topology: &Topology,
+        reference: &[DVec3],
+        rest: &[DVec3],
+        c: &MembraneConstants,
+    ) -> Result<Self, ForceError> {
+        let mut model = Self::stress_free(topology, reference, c)?;
+        check_positions(rest, topology.n_vertices, "rest positions")?;
+        (model.area0, model.volume0) = model.area_volume(rest)?;
+        if !(model.volume0 > 0.0) {
+            return Err(ForceError::BadConstant {
+                name: "volume0",
+                value: model.volume0,
+                allowed: "> 0 (outward triangles)",
+            });
+        }
+        Ok(model)
+    }
+
+    /// The model with the spheroidal reference of reduced volume `reduced_volume`
+    /// ([`ReferenceState::Spheroid`]) for the resting cell `rest`.
+    pub fn spheroidal(
+        topology: &Topology,
+        rest: &[DVec3],
+        c: &MembraneConstants,
+        reduced_volume: f64,
+    ) -> Result<Self, ForceError> {
+        check_positions(rest, topology.n_vertices, "rest positions")?;
+        let reference = crate::reference::spheroid_reference(rest, &topology.triangles, reduced_volume).ok_or(
+            ForceError::BadConstant {
+                name: "reduced_volume",
+                value: reduced_volume,
+                allowed: "0 < v <= 1, on a mesh with an area",
+            },
+        )?;
+        let mut model = Self::stress_free_on(topology, &reference, rest, c)?;
+        model.reference = ReferenceState::Spheroid { reduced_volume };
+        Ok(model)
+    }
+
     /// Builds the model of `reference` from the resting positions `rest`; for
     /// [`ReferenceState::Uniform`] A0 and V0 are those of `rest` and L0 is `c.l0`.
     pub fn new(
@@ -507,6 +558,7 @@ impl MembraneModel {
     ) -> Result<Self, ForceError> {
         match reference {
             ReferenceState::StressFree => Self::stress_free(topology, rest, c),
+            ReferenceState::Spheroid { reduced_volume } => Self::spheroidal(topology, rest, c, reduced_volume),
             ReferenceState::Uniform => {
                 check_positions(rest, topology.n_vertices, "rest positions")?;
                 let mut model = Self::uniform(topology, c, 1.0, 1.0)?;

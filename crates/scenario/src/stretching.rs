@@ -44,7 +44,9 @@ pub struct MembraneSection {
     /// Temperature, K (default 300).
     #[serde(default = "default_temperature")]
     pub temperature_k: f64,
-    /// `"stress-free"` (default: each link and triangle unstrained at rest) or `"uniform"` (the paper's one L0).
+    /// `"stress-free"` (default: each link and triangle unstrained at rest), `"uniform"` (the
+    /// paper's one L0), or `{ spheroid = { reduced_volume = v } }` (unstrained on the oblate
+    /// spheroid of the cell's area and reduced volume v, 0.65–1).
     #[serde(default)]
     pub reference: ReferenceState,
     /// Multiplies the Eq. 12 persistence length (the paper's ±10 % sensitivity study). Default 1.
@@ -135,6 +137,7 @@ fn validate_membrane(m: &MembraneSection, c: &Check) -> Result<(), ScenarioError
         400.0,
         "a temperature in kelvin between 200 and 400 (room temperature is 300)",
     )?;
+    crate::cell::section::validate_reference(&m.reference, "membrane.reference", c)?;
     c.range(
         "membrane.persistence_scale",
         m.persistence_scale,
@@ -370,6 +373,9 @@ pub fn model_of(s: &StretchingScenario, params: &ModelParams, mesh: &Mesh) -> Re
     Ok(match s.membrane.reference {
         ReferenceState::Uniform => MembraneModel::uniform(&topo, &c, mesh.area(), mesh.volume())?,
         ReferenceState::StressFree => MembraneModel::stress_free(&topo, &mesh.vertices, &c)?,
+        ReferenceState::Spheroid { reduced_volume } => {
+            MembraneModel::spheroidal(&topo, &mesh.vertices, &c, reduced_volume)?
+        }
     })
 }
 
@@ -390,7 +396,7 @@ pub fn prepare(s: &StretchingScenario) -> Result<Prepared, RunError> {
     let quality = mesh.quality()?;
     let mut info =
         json!({ "mesh": mesh_info, "mesh_quality": quality, "parameters": params, "reference": s.membrane.reference });
-    if s.membrane.reference == ReferenceState::StressFree {
+    if s.membrane.reference != ReferenceState::Uniform {
         info["tension_ratio_distribution"] = json!(model.tension_ratio_distribution());
     }
     Ok(Prepared {

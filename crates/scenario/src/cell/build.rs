@@ -209,6 +209,9 @@ pub(crate) fn membrane_model(cell: &CellSection, map: &UnitMapping, rest: &Mesh)
     Ok(match cell.reference {
         ReferenceState::Uniform => MembraneModel::uniform(&topo, &c, rest.area(), rest.volume())?,
         ReferenceState::StressFree => MembraneModel::stress_free(&topo, &rest.vertices, &c)?,
+        ReferenceState::Spheroid { reduced_volume } => {
+            MembraneModel::spheroidal(&topo, &rest.vertices, &c, reduced_volume)?
+        }
     })
 }
 

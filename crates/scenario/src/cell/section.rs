@@ -60,7 +60,9 @@ pub struct CellSection {
     /// Temperature, K (default 300, the paper's).
     #[serde(default = "d_temp")]
     pub temperature_k: f64,
-    /// "stress-free" (default) or "uniform" (the paper's single L0).
+    /// "stress-free" (default: the resting cell), "uniform" (the paper's single L0), or
+    /// `{ spheroid = { reduced_volume = v } }` (the oblate spheroid of the cell's area and
+    /// reduced volume v, 0.65–1).
     #[serde(default)]
     pub reference: ReferenceState,
     /// Multiplies the Eq. 12 persistence length (default 1).
@@ -279,6 +281,7 @@ pub(crate) fn validate_cell(cell: &CellSection, file: &str) -> Result<(), Scenar
     }
     range("cell.temperature_k", cell.temperature_k, 250.0, 350.0, "250–350 K")?;
     range("cell.persistence_scale", cell.persistence_scale, 0.5, 2.0, "0.5–2")?;
+    validate_reference(&cell.reference, "cell.reference", &c)?;
     range(
         "cell.membrane_viscosity_pa_s_m",
         cell.membrane_viscosity_pa_s_m,
@@ -300,6 +303,28 @@ pub(crate) fn validate_cell(cell: &CellSection, file: &str) -> Result<(), Scenar
         1e6,
         "0–1e6 N/m²",
     )
+}
+
+/// Lowest reduced volume of a spheroidal reference: the resting cell's is 0.644, and a
+/// reference less spherical than the cell it rests as is not one the peer studies consider.
+pub const MIN_REFERENCE_REDUCED_VOLUME: f64 = 0.65;
+
+/// Checks the reduced volume of a spheroidal `reference` (under `key`, e.g. `cell.reference`).
+pub(crate) fn validate_reference(
+    reference: &ReferenceState,
+    key: &str,
+    c: &crate::file::Check,
+) -> Result<(), ScenarioError> {
+    if let ReferenceState::Spheroid { reduced_volume } = reference {
+        c.range(
+            &format!("{key}.spheroid.reduced_volume"),
+            *reduced_volume,
+            MIN_REFERENCE_REDUCED_VOLUME,
+            1.0,
+            "a reduced volume from 0.65 to 1 (a sphere); the resting cell's is 0.644, the peer studies' stress-free spheroids 0.93–0.97",
+        )?;
+    }
+    Ok(())
 }
 
 /// Validates the shared `[model]` keys, in the order the kinds have always checked them:
