@@ -159,7 +159,7 @@ enum Command {
         #[arg(long, default_value = "RBC stretching")]
         title: String,
     },
-    /// Render membrane shapes from a trajectory (e.g. shapes.h5) as a PNG.
+    /// Render membrane shapes from a trajectory (e.g. shapes.h5) as a PNG of panels, or as a movie (--movie out.gif).
     Render {
         trajectory: PathBuf,
         /// Frame indices (default: all).
@@ -176,8 +176,21 @@ enum Command {
         /// trajectories, oblique otherwise.
         #[arg(long)]
         view: Option<String>,
-        #[arg(short = 'o', long)]
-        output: PathBuf,
+        /// The PNG of panels.
+        #[arg(short = 'o', long, required_unless_present = "movie")]
+        output: Option<PathBuf>,
+        /// A movie of the frames instead (.gif, or .mp4 when ffmpeg is installed): a capillary
+        /// run from the side with the tube drawn, following the cell; a shear run along the
+        /// vorticity with the flow marked; others obliquely (docs/output.md, "Movies").
+        #[arg(long, conflicts_with = "output")]
+        movie: Option<PathBuf>,
+        /// Movie frames per second.
+        #[arg(long, default_value_t = 10.0)]
+        fps: f64,
+        /// What colours the cell in a movie: "shading", "speed" (|v − v_cell| per vertex) or
+        /// "area-strain" (local area against the first frame).
+        #[arg(long, default_value = "shading")]
+        color_by: String,
     },
     /// Analyse the membrane frames of a trajectory after the fact (CSV + JSON, PNGs with --plot).
     ///
@@ -351,7 +364,31 @@ fn dispatch(cli: Cli) -> Result<()> {
             edges,
             view,
             output,
-        } => render(&trajectory, &frames, columns, edges, view.as_deref(), &output),
+            movie,
+            fps,
+            color_by,
+        } => match (movie, output) {
+            (Some(movie), _) => {
+                let opts = hemodpd_scenario::movie::MovieOptions {
+                    frames,
+                    fps,
+                    color_by: color_by.parse()?,
+                };
+                let r = hemodpd_scenario::movie::write_movie(&trajectory, &movie, &opts)
+                    .with_context(|| format!("rendering {} into {}", trajectory.display(), movie.display()))?;
+                eprintln!(
+                    "wrote {}: {} frames of {}×{}, {} view",
+                    r.path.display(),
+                    r.frames,
+                    r.width,
+                    r.height,
+                    r.view
+                );
+                Ok(())
+            }
+            (None, Some(output)) => render(&trajectory, &frames, columns, edges, view.as_deref(), &output),
+            (None, None) => bail!("give --output FILE.png or --movie FILE.gif"),
+        },
         Command::Mesh {
             n,
             output,

@@ -221,17 +221,147 @@ fn stretching_with_a_spheroidal_reference() {
     let run = |reference: &str| {
         let dir = tempfile::tempdir().unwrap();
         let set = format!("membrane.reference={reference}");
-        let out = hemodpd(&["run", scenario, "--set", &set, "--out", dir.path().to_str().unwrap(), "--quiet"]);
+        let out = hemodpd(&[
+            "run",
+            scenario,
+            "--set",
+            &set,
+            "--out",
+            dir.path().to_str().unwrap(),
+            "--quiet",
+        ]);
         assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
         let j: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(dir.path().join("summary.json")).unwrap()).unwrap();
         j
     };
     let (plain, sph) = (run("\"stress-free\""), run("{spheroid={reduced_volume=0.95}}"));
-    assert_eq!(sph["scenario"]["membrane"]["reference"]["spheroid"]["reduced_volume"], 0.95);
+    assert_eq!(
+        sph["scenario"]["membrane"]["reference"]["spheroid"]["reduced_volume"],
+        0.95
+    );
     let f = |j: &serde_json::Value, p: &str| j["results"].pointer(p).and_then(|v| v.as_f64()).unwrap();
     let (d0, d1) = (f(&plain, "/axial_diameter_um/0"), f(&sph, "/axial_diameter_um/0"));
     assert!((d1 / d0 - 1.0).abs() < 0.02, "rest D_A {d1} µm against {d0} µm");
     let (r0, r1) = (f(&plain, "/mills2004/rms_both_um"), f(&sph, "/mills2004/rms_both_um"));
-    assert!((r1 - r0).abs() < 0.05 && r1 < 1.0, "RMS from Mills {r1} µm against {r0} µm");
+    assert!(
+        (r1 - r0).abs() < 0.05 && r1 < 1.0,
+        "RMS from Mills {r1} µm against {r0} µm"
+    );
+}
+
+/// Runs a short scenario through the CLI into `out`, with `sets` as `--set` overrides.
+fn run_short(scenario: &str, sets: &[&str], out: &std::path::Path) {
+    let scen = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join(scenario);
+    let mut args = vec!["run", scen.to_str().unwrap()];
+    for s in sets {
+        args.extend(["--set", s]);
+    }
+    args.extend(["--quiet", "--out", out.to_str().unwrap()]);
+    let run = hemodpd(&args);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+}
+
+/// Decodes a GIF: (frame count, width, height, delay of the first frame in 1/100 s).
+fn decode_gif(path: &std::path::Path) -> (usize, u16, u16, u16) {
+    let mut opts = gif::DecodeOptions::new();
+    opts.set_color_output(gif::ColorOutput::RGBA);
+    let mut dec = opts.read_info(std::fs::File::open(path).unwrap()).unwrap();
+    let (w, h) = (dec.width(), dec.height());
+    let (mut n, mut delay) = (0, 0);
+    while let Some(frame) = dec.read_next_frame().unwrap() {
+        assert_eq!((frame.width, frame.height), (w, h), "every frame covers the canvas");
+        // A frame that is one colour drew nothing.
+        let first = &frame.buffer[..4];
+        assert!(frame.buffer.chunks(4).any(|p| p != first), "frame {n} is blank");
+        if n == 0 {
+            delay = frame.delay;
+        }
+        n += 1;
+    }
+    (n, w, h, delay)
+}
+
+/// `render --movie` turns a capillary run (side view, tube drawn) and a shear run (along the
+/// vorticity) into GIFs: one frame per stored membrane frame (or per `--frames` entry), the size
+/// of the view, the delay from `--fps`; `.mp4` without ffmpeg on the PATH fails with a message
+/// that says so, and an unknown colouring names the allowed ones.
+#[test]
+fn movies_of_a_capillary_and_a_shear_run() {
+    let dir = tempfile::tempdir().unwrap();
+    let cap = dir.path().join("cap");
+    run_short(
+        "scenarios/capillary.toml",
+        &[
+            "tube.length_um=20.0",
+            "stage.0.duration_s=0.0002",
+            "stage.1.duration_s=0.0006",
+            "stage.2.duration_s=0.0004",
+            "output.frame_every_s=0.0002",
+        ],
+        &cap,
+    );
+    let shear = dir.path().join("shear");
+    run_short(
+        "scenarios/shear.toml",
+        &[
+            "shear.duration_strain=0.4",
+            "output.sample_every_strain=0.05",
+            "output.frame_every_strain=0.1",
+            "cell.vertices=100",
+            "shear.box_um=[12.0,12.0,10.0]",
+        ],
+        &shear,
+    );
+    let stored = |run: &std::path::Path| {
+        let reader = hemodpd_io::TrajectoryReader::open(run.join("trajectory.h5")).unwrap();
+        reader.membrane_frames().unwrap()
+    };
+    let (cap_frames, shear_frames) = (stored(&cap), stored(&shear));
+    assert!(cap_frames >= 5 && shear_frames >= 4, "{cap_frames} {shear_frames}");
+
+    let movie = |run: &std::path::Path, name: &str, extra: &[&str]| {
+        let out = dir.path().join(name);
+        let traj = run.join("trajectory.h5");
+        let mut args = vec!["render", traj.to_str().unwrap(), "--movie", out.to_str().unwrap()];
+        args.extend(extra);
+        let r = hemodpd(&args);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        (out, String::from_utf8_lossy(&r.stderr).into_owned())
+    };
+    let (gif, msg) = movie(&cap, "cap.gif", &["--color-by", "area-strain"]);
+    assert!(msg.contains("side view, tube walls"), "{msg}");
+    assert_eq!(decode_gif(&gif), (cap_frames, 640, 320, 10));
+    let (gif, msg) = movie(&shear, "shear.gif", &["--color-by", "speed", "--fps", "4"]);
+    assert!(msg.contains("along the vorticity"), "{msg}");
+    assert_eq!(decode_gif(&gif), (shear_frames, 480, 480, 25));
+    let (gif, _) = movie(&cap, "two.gif", &["--frames", "0,2"]);
+    assert_eq!(decode_gif(&gif).0, 2);
+
+    let traj = cap.join("trajectory.h5");
+    let mp4 = dir.path().join("cap.mp4");
+    let r = Command::new(env!("CARGO_BIN_EXE_hemodpd"))
+        .args(["render", traj.to_str().unwrap(), "--movie", mp4.to_str().unwrap()])
+        .env("PATH", "")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        !r.status.success() && err.contains("ffmpeg") && err.contains(".gif"),
+        "{err}"
+    );
+    assert!(!mp4.exists(), "nothing written when ffmpeg is missing");
+    let r = hemodpd(&[
+        "render",
+        traj.to_str().unwrap(),
+        "--movie",
+        "x.gif",
+        "--color-by",
+        "pressure",
+    ]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        !r.status.success() && err.contains("shading") && err.contains("area-strain"),
+        "{err}"
+    );
 }

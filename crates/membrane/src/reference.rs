@@ -102,7 +102,7 @@ pub fn spheroid_reference(rest: &[DVec3], triangles: &[[u32; 3]], v: f64) -> Opt
         (y, d - y * axis)
     };
     let r_max = rest.iter().map(|p| split(*p).1.length()).fold(0.0, f64::max);
-    if !(r_max > 0.0) {
+    if r_max.is_nan() || r_max <= 0.0 {
         return None;
     }
     let mut x: Vec<DVec3> = rest

@@ -17,6 +17,7 @@ pub mod fluid;
 pub mod fluid_choice;
 pub mod kind;
 pub mod mesh_cache;
+pub mod movie;
 pub mod registry;
 pub mod run_dir;
 pub mod shear;

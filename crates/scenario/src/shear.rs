@@ -853,7 +853,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     let secs = performance["stepping_seconds"].as_f64().unwrap_or(f64::NAN);
     performance["seconds_per_simulated_second"] = json!(secs / sim_s.max(1e-300));
     performance["seconds_per_unit_strain"] = json!(secs / (steps * plan.setup.dt * plan.rate).max(1e-300));
-    let mut out = common_blocks(plan, &stats, &run.mesh_info);
+    let mut out = common_blocks(plan, stats, &run.mesh_info);
     out["shear"] = json!({
         "driver": plan.s.shear.driver,
         "shear_rate_per_s": rate_si,

@@ -1228,7 +1228,7 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
             d
         })
         .unwrap_or(serde_json::Value::Null);
-    let mut out = common_blocks(plan, &stats, &run.mesh_info);
+    let mut out = common_blocks(plan, stats, &run.mesh_info);
     let mut performance = performance_json(&run.sim, run.st.stepping_seconds, &run.clock);
     performance["this_session"]["note"] = json!("shares of this session's wall time (since the run started or resumed); the fluid's pair forces, the integrator and the cell lists are the remainder");
     out["model"] = json!({
