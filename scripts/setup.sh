@@ -4,7 +4,7 @@
 # Debian's python3-h5py (crates/io/tests/h5py.rs reads our files with /usr/bin/python3 + h5py; that
 # test fails, it does not skip, when h5py cannot be imported).
 set -euo pipefail
-pkgs=(libhdf5-dev pkg-config libfontconfig1-dev libfreetype-dev fonts-dejavu-core python3 python3-numpy python3-h5py)
+pkgs=(libhdf5-dev pkg-config libfontconfig1-dev libfreetype-dev fonts-dejavu-core python3 python3-numpy python3-h5py python3-venv)
 missing=()
 for p in "${pkgs[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -8,10 +8,8 @@ use hemodpd_scenario::mesh_cache;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 
-mod run;
-mod sweep;
-
-use run::{resume_run, run_one};
+use hemodpd::run::{resume_run, run_one};
+use hemodpd::sweep;
 
 /// mimalloc: faster allocation, and on Linux it asks for transparent huge pages
 /// (`madvise(MADV_HUGEPAGE)`) for its large regions, which holds the engine's particle arrays in

@@ -6,6 +6,15 @@ use hemodpd_scenario::RunContext;
 use serde_json::json;
 use std::path::{Path, PathBuf};
 
+/// Where a run of the scenario file `path` writes when no directory is given: `runs/STEM`.
+pub fn default_out_dir(path: &Path) -> PathBuf {
+    let stem = path
+        .file_stem()
+        .map(|s| s.to_string_lossy().to_string())
+        .unwrap_or_else(|| "run".into());
+    PathBuf::from("runs").join(stem)
+}
+
 /// Runs one scenario and writes its summary; returns the summary.
 pub fn run_one(
     path: &Path,
@@ -19,11 +28,7 @@ pub fn run_one(
     if threads == 0 {
         bail!("--threads must be at least 1");
     }
-    let stem = path
-        .file_stem()
-        .map(|s| s.to_string_lossy().to_string())
-        .unwrap_or_else(|| "run".into());
-    let out_dir = out.unwrap_or_else(|| PathBuf::from("runs").join(stem));
+    let out_dir = out.unwrap_or_else(|| default_out_dir(path));
     // the directory is this run's until the summary is written (the run itself takes the lock
     // again, re-entrantly; a second process stops here having changed nothing)
     let _lock = hemodpd_scenario::lock_out_dir(&out_dir, quiet).map_err(anyhow::Error::new)?;

@@ -318,6 +318,11 @@ fn movies_of_a_capillary_and_a_shear_run() {
         reader.membrane_frames().unwrap()
     };
     let (cap_frames, shear_frames) = (stored(&cap), stored(&shear));
+    // each run leaves the ParaView view script beside its trajectory
+    for run in [&cap, &shear] {
+        let script = std::fs::read_to_string(run.join("view_in_paraview.py")).unwrap();
+        assert_eq!(script, hemodpd_scenario::run_dir::PARAVIEW_VIEW_SCRIPT);
+    }
     assert!(cap_frames >= 5 && shear_frames >= 4, "{cap_frames} {shear_frames}");
 
     let movie = |run: &std::path::Path, name: &str, extra: &[&str]| {

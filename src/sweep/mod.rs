@@ -631,6 +631,13 @@ pub fn collect(dir: &Path) -> Result<()> {
     .into())
 }
 
+/// The table of the sweep directory `dir` as `sweep.json` holds it, collected now (the points
+/// finished so far; nothing is written).
+pub fn table_json(dir: &Path) -> Result<Value> {
+    let m = Manifest::read(dir)?;
+    Ok(Table::collect(dir, &m)?.to_json())
+}
+
 /// One row of the sweep table.
 pub struct Row {
     pub index: usize,

@@ -55,6 +55,13 @@ pub trait Kind: Sized + Clone + std::fmt::Debug + Serialize + DeserializeOwned {
     fn explain_units(&self) -> Option<Result<String, RunError>> {
         None
     }
+
+    /// The same mapping as data: the scales (`length_m`, `energy_j`, `time_s`), the thermal
+    /// factor, the chosen fluid and the dimensionless groups in SI and in the model (the Python
+    /// package's `explain_units`); `None` for kinds written in model units.
+    fn unit_mapping_json(&self) -> Option<Result<serde_json::Value, RunError>> {
+        None
+    }
 }
 
 /// Deserialises and validates one kind from a parsed file.
@@ -121,6 +128,10 @@ macro_rules! scenario_kinds {
             /// See [`Kind::explain_units`].
             pub fn explain_units(&self) -> Option<Result<String, $crate::context::RunError>> {
                 match self { $(Scenario::$variant(s) => <$ty as $crate::kind::Kind>::explain_units(s)),+ }
+            }
+            /// See [`Kind::unit_mapping_json`].
+            pub fn unit_mapping_json(&self) -> Option<Result<serde_json::Value, $crate::context::RunError>> {
+                match self { $(Scenario::$variant(s) => <$ty as $crate::kind::Kind>::unit_mapping_json(s)),+ }
             }
             /// The sweep table's columns of this scenario's kind.
             pub fn sweep_columns(&self) -> &'static [$crate::kind::SweepColumn] {

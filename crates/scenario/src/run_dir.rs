@@ -344,7 +344,23 @@ pub fn open_trajectory(
     last_frame: Option<u64>,
     create: impl FnOnce(&Path) -> Result<TrajectoryWriter, hemodpd_io::IoError>,
 ) -> Result<TrajectoryWriter, RunError> {
-    open_trajectory_at(&ctx.out_dir.join(TRAJECTORY_FILE), resumed, last_frame, create)
+    let writer = open_trajectory_at(&ctx.out_dir.join(TRAJECTORY_FILE), resumed, last_frame, create)?;
+    write_paraview_view(&ctx.out_dir)?;
+    Ok(writer)
+}
+
+/// The script beside every `trajectory.h5` that opens the run in ParaView, set up: the cell,
+/// the tube of a capillary run, the binned fluid velocity (docs/output.md, "ParaView").
+pub const PARAVIEW_VIEW_FILE: &str = "view_in_paraview.py";
+
+/// Its text: one generic pvpython script, reading the run's `summary.json` (or, while the run
+/// goes on, `trajectory.h5`) for the scenario.
+pub const PARAVIEW_VIEW_SCRIPT: &str = include_str!("paraview_view.py");
+
+/// Writes [`PARAVIEW_VIEW_FILE`] into `dir` (replacing an older version of it).
+pub fn write_paraview_view(dir: &Path) -> Result<(), RunError> {
+    let path = dir.join(PARAVIEW_VIEW_FILE);
+    std::fs::write(&path, PARAVIEW_VIEW_SCRIPT).map_err(|source| RunError::Io { path, source })
 }
 
 /// [`open_trajectory`] for a trajectory file of another name.

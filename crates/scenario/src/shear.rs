@@ -1061,6 +1061,12 @@ impl crate::kind::Kind for ShearScenario {
     fn explain_units(&self) -> Option<Result<String, RunError>> {
         Some(ShearScenario::explain_units(self))
     }
+    fn unit_mapping_json(&self) -> Option<Result<serde_json::Value, RunError>> {
+        Some(
+            self.mapping()
+                .map(|(sys, d)| crate::cell::summary::mapping_json(&sys, &d)),
+        )
+    }
 }
 
 #[cfg(test)]

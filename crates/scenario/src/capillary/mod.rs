@@ -1369,6 +1369,12 @@ impl crate::kind::Kind for CapillaryScenario {
     fn explain_units(&self) -> Option<Result<String, RunError>> {
         Some(CapillaryScenario::explain_units(self))
     }
+    fn unit_mapping_json(&self) -> Option<Result<serde_json::Value, RunError>> {
+        Some(
+            self.mapping()
+                .map(|(sys, d)| crate::cell::summary::mapping_json(&sys, &d)),
+        )
+    }
 }
 
 #[cfg(test)]

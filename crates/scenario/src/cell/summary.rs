@@ -102,6 +102,20 @@ pub(crate) fn common_blocks(
     })
 }
 
+/// The unit mapping of a cell scenario as data, before any run: scales, thermal factor, the
+/// chosen fluid (at its own time step) with the reason, and the groups in SI and in the model.
+pub(crate) fn mapping_json(sys: &units::PhysicalSystem, d: &crate::fluid_choice::FluidDecision) -> serde_json::Value {
+    let m = &d.map;
+    json!({
+        "length_m": m.length_m, "energy_j": m.energy_j, "time_s": m.time_s,
+        "thermal_factor": m.thermal_factor, "warnings": m.warnings,
+        "fluid": crate::fluid_choice::fluid_json(&d.fluid, d.fluid.timestep),
+        "fluid_reason": d.reason,
+        "groups_si": units::groups_si(sys),
+        "groups_model": units::groups_model(sys, m, &d.fluid),
+    })
+}
+
 /// A cell run's clocks: stepping time since the last checkpoint (the time before it is saved in
 /// the checkpoint), this session's start (step and instant), and its seconds in sampling and
 /// frames.

@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# The Python package's tests (part of the README's test command, so of CI): makes a virtual
+# environment in target/python-venv, installs the package from python/ the way a user does
+# (`pip install ./python`, built by maturin) plus pytest, pandas and matplotlib, and runs
+# python/tests/ (which also runs examples/). The native module is built with the `pyext`
+# profile (Cargo.toml: optimised lightly, no debug info, quick to compile cold) into
+# target/pyext; a user's `pip install ./python` builds a release wheel instead. The sweep test
+# uses the CLI that `cargo test --workspace` builds (target/debug/hemodpd), so run this after it.
+#   HEMODPD_VENV   where the environment goes (default target/python-venv)
+#   PYTHON         the interpreter that makes it (default python3; 3.9 or newer)
+set -euo pipefail
+ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+VENV="${HEMODPD_VENV:-$ROOT/target/python-venv}"
+if [ ! -x "$VENV/bin/python" ]; then
+  "${PYTHON:-python3}" -m venv "$VENV"
+fi
+"$VENV/bin/python" -m pip install -q --disable-pip-version-check pytest numpy pandas matplotlib
+CARGO_TARGET_DIR="$ROOT/target" MATURIN_PEP517_ARGS="--profile pyext" \
+  "$VENV/bin/python" -m pip install -q --disable-pip-version-check --force-reinstall --no-deps "$ROOT/python"
+cd "$ROOT"
+exec "$VENV/bin/python" -m pytest -q python/tests "$@"
