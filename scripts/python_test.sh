@@ -18,4 +18,6 @@ fi
 CARGO_TARGET_DIR="$ROOT/target" MATURIN_PEP517_ARGS="--profile pyext" \
   "$VENV/bin/python" -m pip install -q --disable-pip-version-check --force-reinstall --no-deps "$ROOT/python"
 cd "$ROOT"
-exec "$VENV/bin/python" -m pytest -q python/tests "$@"
+# nothing written into the source tree: no pytest cache, no bytecode beside the tests
+export PYTHONDONTWRITEBYTECODE=1
+exec "$VENV/bin/python" -m pytest -q -p no:cacheprovider python/tests "$@"

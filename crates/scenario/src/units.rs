@@ -908,6 +908,12 @@ pub fn explain(sys: &PhysicalSystem, m: &UnitMapping, fluid: &FluidModel) -> Str
             visc.gamma_c,
             4.0 * v.membrane_viscosity / 3f64.sqrt()
         );
+        let _ = writeln!(
+            s,
+            "    {:<24} without rotation (a stretched cell relaxing) \"fedosov\" acts as 7/13 η_m, so its Kelvin–Voigt time is {:.4} ms; \"central\" as η_m (docs/model.md §7b)",
+            "  what η_m means",
+            7.0 / 13.0 * sys.membrane_viscosity_n_s_per_m / sys.shear_modulus_n_per_m * 1e3
+        );
     } else {
         let _ = writeln!(s, "    {:<24} 0 (off: the paper's model)", "membrane viscosity η_m");
     }

@@ -47,7 +47,7 @@ pub(crate) fn d_range() -> f64 {
     0.3
 }
 pub(crate) fn d_substeps() -> SubstepSetting {
-    SubstepSetting::Count(1)
+    SubstepSetting::Word("auto".into())
 }
 
 /// `[cell]`: the membrane (parameters from N by the paper's Eqs. 8, 9, 12).
@@ -126,8 +126,9 @@ impl std::fmt::Display for ThermalSetting {
     }
 }
 
-/// `model.membrane_substeps`: an integer k (1–1000; 1, the default: no sub-stepping) or
-/// "auto" (the smallest k with (γ_T + γ_C)(Δt/k)/μ ≤ 1 when there is a membrane viscosity, else 1).
+/// `model.membrane_substeps`: an integer k (1–1000; 1: no sub-stepping) or "auto", the default
+/// (the smallest k with (γ_T + γ_C)(Δt/k)/μ ≤ 1 when there is a membrane viscosity, so that it
+/// acts at ≥ 93 % of its value; else 1).
 #[derive(Clone, Debug, PartialEq, Deserialize, Serialize)]
 #[serde(untagged)]
 pub enum SubstepSetting {
@@ -443,7 +444,7 @@ pub(crate) fn validate_substeps(k: &SubstepSetting, file: &str) -> Result<(), Sc
             key: "model.membrane_substeps".into(),
             value: k.to_string(),
             allowed: format!(
-                "an integer 1–{MAX_SUBSTEPS} (1, the default: no sub-stepping) or \"auto\" (from the membrane viscosity)"
+                "an integer 1–{MAX_SUBSTEPS} (1: no sub-stepping) or \"auto\" (the default: from the membrane viscosity)"
             ),
         })
     }
@@ -473,8 +474,8 @@ pub(crate) fn resolve_substeps(
 mod tests {
     use super::*;
 
-    /// "auto" membrane sub-steps: the smallest k with (γ_T + γ_C)(Δt/k)/μ ≤ 1 (μ = ½ for unit
-    /// vertex masses), 1 without a viscosity; a count is taken as it is (default 1). The physiological
+    /// "auto" membrane sub-steps (the default): the smallest k with (γ_T + γ_C)(Δt/k)/μ ≤ 1
+    /// (μ = ½ for unit vertex masses), 1 without a viscosity; a count is taken as it is. The physiological
     /// 6.3e-7 N·s/m of the default capillary mapping (γ_T + γ_C ≈ 9923 at Δt = 0.0025) gives 50.
     #[test]
     fn automatic_membrane_substeps() {
@@ -486,7 +487,8 @@ mod tests {
         assert_eq!(resolve_substeps(&auto, Some(&v), 0.0025, 1.0), 50);
         assert_eq!(resolve_substeps(&auto, None, 0.0025, 1.0), 1);
         assert_eq!(resolve_substeps(&SubstepSetting::Count(7), Some(&v), 0.0025, 1.0), 7);
-        assert_eq!(resolve_substeps(&d_substeps(), Some(&v), 0.0025, 1.0), 1);
+        assert_eq!(resolve_substeps(&d_substeps(), Some(&v), 0.0025, 1.0), 50);
+        assert_eq!(resolve_substeps(&d_substeps(), None, 0.0025, 1.0), 1);
         let weak = MembraneViscosity {
             gamma_t: 10.0,
             gamma_c: 10.0 / 3.0,

@@ -34,7 +34,7 @@ pub(crate) fn membrane_viscosity_summary(
         "kelvin_voigt_time_s": eta_si / shear_modulus_n_per_m,
         "substeps": substeps,
         "effective_friction_fraction": fraction,
-        "note": "2D membrane viscosity η_m (0: off, the paper's model); model units E τ/r²; Fedosov's link friction with γ_C = γ_T/3, η_m = √3 γ_T + √3 γ_C/4; η_m/μ0 is the Kelvin–Voigt time of the membrane alone; substeps: membrane sub-steps per fluid step (model.membrane_substeps); effective_friction_fraction: the link friction the scheme acts with on slow motion, over γ_T + γ_C (null without viscosity; docs/model.md §7b)",
+        "note": "2D membrane viscosity η_m (0: off, the paper's model); model units E τ/r²; Fedosov's link friction with γ_C = γ_T/3, η_m = √3 γ_T + √3 γ_C/4; η_m/μ0 is the Kelvin–Voigt time of the membrane alone (η_m is the simple-shear viscosity; without rotation, as in a stretch relaxation, Fedosov's form acts as 7/13 η_m and the central form as η_m); substeps: membrane sub-steps per fluid step (model.membrane_substeps); effective_friction_fraction: the link friction the scheme acts with on slow motion, over γ_T + γ_C (null without viscosity; docs/model.md §7b)",
     })
 }
 
