@@ -56,6 +56,45 @@ enum Command {
         /// systems, the time step in seconds) and exit without running (capillary and shear scenarios).
         #[arg(long, conflicts_with = "resume")]
         explain_units: bool,
+        /// Calibrated parameters from `hemodpd fit` (its calibrated.toml): the overrides for
+        /// this scenario's kind, applied before any --set.
+        #[arg(long, value_name = "CALIBRATED.toml", conflicts_with = "resume")]
+        params: Option<PathBuf>,
+    },
+    /// Calibrate parameters against experiments (docs/fit.md): a grid design run through
+    /// `hemodpd sweep` per experiment (resumable; --emit-slurm for a cluster), a quadratic
+    /// response surface of χ², the minimum with its Δχ² = 1 uncertainties; writes
+    /// OUT/calibrated.toml (for `hemodpd run --params`) and OUT/fit.json.
+    Fit {
+        /// The fit file (TOML: [[parameter]] name/lower/upper/points, [[experiment]] by name or
+        /// with a scenario, parameter keys and observables).
+        file: PathBuf,
+        /// Output directory (default: runs/STEM).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Runs at once.
+        #[arg(long, default_value_t = 1)]
+        jobs: usize,
+        /// Worker threads of each run (default: the cores divided by --jobs).
+        #[arg(long)]
+        threads_per_job: Option<usize>,
+        /// No progress output.
+        #[arg(long)]
+        quiet: bool,
+        /// Write one Slurm job array per experiment into OUT/<experiment> instead of running;
+        /// run the same command without it after the jobs to fit.
+        #[arg(long)]
+        emit_slurm: bool,
+        #[arg(long, value_name = "TIME", default_value = "01:00:00")]
+        slurm_time: String,
+        #[arg(long, value_name = "SIZE")]
+        slurm_mem: Option<String>,
+        #[arg(long, value_name = "NAME")]
+        slurm_partition: Option<String>,
+        #[arg(long, value_name = "NAME")]
+        slurm_account: Option<String>,
+        #[arg(long, value_name = "N", default_value_t = 1)]
+        slurm_cpus: usize,
     },
     /// Validate scenario files without running them.
     Check {
@@ -284,12 +323,52 @@ fn dispatch(cli: Cli) -> Result<()> {
             threads,
             quiet,
             explain_units,
-        } => match (scenario, resume) {
-            (Some(scenario), None) if explain_units => explain(&scenario, &sets),
-            (_, Some(dir)) => resume_run(&dir, threads, quiet),
-            (Some(scenario), None) => run(&scenario, &sets, out, threads, quiet),
-            (None, None) => bail!("give a scenario file or --resume DIR"),
-        },
+            params,
+        } => {
+            let sets = match (&params, &scenario) {
+                (Some(p), Some(s)) => {
+                    let kind = hemodpd_scenario::load(s, &sets)?.kind().to_string();
+                    let mut all = hemodpd::fit::params_sets(p, &kind)?;
+                    all.extend(sets);
+                    all
+                }
+                _ => sets,
+            };
+            match (scenario, resume) {
+                (Some(scenario), None) if explain_units => explain(&scenario, &sets),
+                (_, Some(dir)) => resume_run(&dir, threads, quiet),
+                (Some(scenario), None) => run(&scenario, &sets, out, threads, quiet),
+                (None, None) => bail!("give a scenario file or --resume DIR"),
+            }
+        }
+        Command::Fit {
+            file,
+            out,
+            jobs,
+            threads_per_job,
+            quiet,
+            emit_slurm,
+            slurm_time,
+            slurm_mem,
+            slurm_partition,
+            slurm_account,
+            slurm_cpus,
+        } => hemodpd::fit::fit(hemodpd::fit::FitArgs {
+            file,
+            out,
+            jobs,
+            threads_per_job,
+            quiet,
+            emit_slurm,
+            slurm: sweep::slurm::SlurmOptions {
+                time: slurm_time,
+                mem: slurm_mem,
+                partition: slurm_partition,
+                account: slurm_account,
+                cpus: slurm_cpus,
+            },
+        })
+        .map(|_| ()),
         Command::Analyze { trajectory, out, plot } => analyze(&trajectory, out, plot),
         Command::Check { scenarios, sets } => {
             if scenarios.is_empty() {
