@@ -85,16 +85,8 @@ enum Command {
         /// run the same command without it after the jobs to fit.
         #[arg(long)]
         emit_slurm: bool,
-        #[arg(long, value_name = "TIME", default_value = "01:00:00")]
-        slurm_time: String,
-        #[arg(long, value_name = "SIZE")]
-        slurm_mem: Option<String>,
-        #[arg(long, value_name = "NAME")]
-        slurm_partition: Option<String>,
-        #[arg(long, value_name = "NAME")]
-        slurm_account: Option<String>,
-        #[arg(long, value_name = "N", default_value_t = 1)]
-        slurm_cpus: usize,
+        #[command(flatten)]
+        slurm: SlurmArgs,
     },
     /// Validate scenario files without running them.
     Check {
@@ -148,21 +140,8 @@ enum Command {
         /// (DIR is the sweep directory; collect with `hemodpd sweep-collect DIR`).
         #[arg(long, value_name = "DIR")]
         emit_slurm: Option<PathBuf>,
-        /// Slurm time limit of each task (--time).
-        #[arg(long, value_name = "TIME", default_value = "01:00:00", requires = "emit_slurm")]
-        slurm_time: String,
-        /// Slurm memory of each task (--mem, e.g. 4G; default: the cluster's).
-        #[arg(long, value_name = "SIZE", requires = "emit_slurm")]
-        slurm_mem: Option<String>,
-        /// Slurm partition (default: the cluster's).
-        #[arg(long, value_name = "NAME", requires = "emit_slurm")]
-        slurm_partition: Option<String>,
-        /// Slurm account (default: yours).
-        #[arg(long, value_name = "NAME", requires = "emit_slurm")]
-        slurm_account: Option<String>,
-        /// CPUs of each task (--cpus-per-task), also its threads.
-        #[arg(long, value_name = "N", default_value_t = 1, requires = "emit_slurm")]
-        slurm_cpus: usize,
+        #[command(flatten)]
+        slurm: SlurmArgs,
     },
     /// Run one point of a sweep directory (what each Slurm array task runs): a finished point is
     /// skipped, one with a checkpoint resumes, any other runs from the start.
@@ -276,6 +255,38 @@ enum Command {
     },
 }
 
+/// The Slurm options of `sweep --emit-slurm` and `fit --emit-slurm`.
+#[derive(clap::Args, Debug)]
+struct SlurmArgs {
+    /// Slurm time limit of each task (--time).
+    #[arg(long, value_name = "TIME", default_value = "01:00:00", requires = "emit_slurm")]
+    slurm_time: String,
+    /// Slurm memory of each task (--mem, e.g. 4G; default: the cluster's).
+    #[arg(long, value_name = "SIZE", requires = "emit_slurm")]
+    slurm_mem: Option<String>,
+    /// Slurm partition (default: the cluster's).
+    #[arg(long, value_name = "NAME", requires = "emit_slurm")]
+    slurm_partition: Option<String>,
+    /// Slurm account (default: yours).
+    #[arg(long, value_name = "NAME", requires = "emit_slurm")]
+    slurm_account: Option<String>,
+    /// CPUs of each task (--cpus-per-task), also its threads.
+    #[arg(long, value_name = "N", default_value_t = 1, requires = "emit_slurm")]
+    slurm_cpus: usize,
+}
+
+impl SlurmArgs {
+    fn options(self) -> sweep::slurm::SlurmOptions {
+        sweep::slurm::SlurmOptions {
+            time: self.slurm_time,
+            mem: self.slurm_mem,
+            partition: self.slurm_partition,
+            account: self.slurm_account,
+            cpus: self.slurm_cpus,
+        }
+    }
+}
+
 /// Ctrl-C / SIGTERM deliveries so far: the first asks the run to checkpoint and stop, a second
 /// exits at once. (Counted apart from INTERRUPTED, which a sweep's child also sets when its
 /// parent closes its stdin.)
@@ -348,11 +359,7 @@ fn dispatch(cli: Cli) -> Result<()> {
             threads_per_job,
             quiet,
             emit_slurm,
-            slurm_time,
-            slurm_mem,
-            slurm_partition,
-            slurm_account,
-            slurm_cpus,
+            slurm,
         } => hemodpd::fit::fit(hemodpd::fit::FitArgs {
             file,
             out,
@@ -360,13 +367,7 @@ fn dispatch(cli: Cli) -> Result<()> {
             threads_per_job,
             quiet,
             emit_slurm,
-            slurm: sweep::slurm::SlurmOptions {
-                time: slurm_time,
-                mem: slurm_mem,
-                partition: slurm_partition,
-                account: slurm_account,
-                cpus: slurm_cpus,
-            },
+            slurm: slurm.options(),
         })
         .map(|_| ()),
         Command::Analyze { trajectory, out, plot } => analyze(&trajectory, out, plot),
@@ -392,11 +393,7 @@ fn dispatch(cli: Cli) -> Result<()> {
             yes,
             quiet,
             emit_slurm,
-            slurm_time,
-            slurm_mem,
-            slurm_partition,
-            slurm_account,
-            slurm_cpus,
+            slurm,
         } => sweep::sweep(sweep::SweepArgs {
             scenario,
             vary,
@@ -408,13 +405,7 @@ fn dispatch(cli: Cli) -> Result<()> {
             out,
             quiet,
             emit_slurm,
-            slurm: sweep::slurm::SlurmOptions {
-                time: slurm_time,
-                mem: slurm_mem,
-                partition: slurm_partition,
-                account: slurm_account,
-                cpus: slurm_cpus,
-            },
+            slurm: slurm.options(),
         }),
         Command::SweepTask {
             dir,

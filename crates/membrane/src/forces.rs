@@ -471,7 +471,7 @@ impl MembraneModel {
         }
         let link_w = vec![w; ns];
 
-        let mut model = Self {
+        let model = Self {
             reference: ReferenceState::StressFree,
             constants: *c,
             n_vertices: n,
@@ -494,15 +494,21 @@ impl MembraneModel {
             k_volume: c.k_volume,
             volume0: 1.0,
         };
-        (model.area0, model.volume0) = model.area_volume(rest)?;
-        if !(model.volume0 > 0.0) {
+        model.with_rest_area_volume(rest)
+    }
+
+    /// The model with A0 and V0 taken from `rest`; refuses a mesh whose volume is not positive
+    /// (inward triangles).
+    fn with_rest_area_volume(mut self, rest: &[DVec3]) -> Result<Self, ForceError> {
+        (self.area0, self.volume0) = self.area_volume(rest)?;
+        if !(self.volume0 > 0.0) {
             return Err(ForceError::BadConstant {
                 name: "volume0",
-                value: model.volume0,
+                value: self.volume0,
                 allowed: "> 0 (outward triangles)",
             });
         }
-        Ok(model)
+        Ok(self)
     }
 
     /// The stress-free construction ([`Self::stress_free`]) on the reference positions
@@ -514,17 +520,9 @@ impl MembraneModel {
         rest: &[DVec3],
         c: &MembraneConstants,
     ) -> Result<Self, ForceError> {
-        let mut model = Self::stress_free(topology, reference, c)?;
+        let model = Self::stress_free(topology, reference, c)?;
         check_positions(rest, topology.n_vertices, "rest positions")?;
-        (model.area0, model.volume0) = model.area_volume(rest)?;
-        if !(model.volume0 > 0.0) {
-            return Err(ForceError::BadConstant {
-                name: "volume0",
-                value: model.volume0,
-                allowed: "> 0 (outward triangles)",
-            });
-        }
-        Ok(model)
+        model.with_rest_area_volume(rest)
     }
 
     /// The model with the spheroidal reference of reduced volume `reduced_volume`

@@ -730,35 +730,7 @@ fn substeps_of_a_lone_cell_are_small_velocity_verlet_steps() {
         let k = substeps as f64;
         let (dt, steps) = (0.001 * k, (1800.0 / k) as u64);
         let config = SimConfig::new(DVec3::splat(l), dt, 5).with_shear_rate(rate);
-        let none = PairParams {
-            a: 0.0,
-            gamma: 0.0,
-            kbt: 0.0,
-            ..PairParams::groot_warren()
-        };
-        let ty = TypeSpec {
-            integrated_by_extension: substeps > 1,
-            ..TypeSpec::new("membrane")
-        };
-        let f = ForceField::new(vec![ty], none).unwrap();
-        let mut p = Particles::with_capacity(mesh.vertices.len());
-        for (k, v) in mesh.vertices.iter().enumerate() {
-            p.push(*v, vel, 0, k as u32);
-        }
-        let cfg = CellConfig {
-            first: 0,
-            outer_type: u16::MAX,
-            inner_type: u16::MAX,
-            check_every: 0,
-            wall: None,
-            reflection: MembraneReflection::BounceBack,
-            kbt: 1.0,
-            seed: 1,
-            substeps,
-            viscosity: None,
-        };
-        let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
-        let mut sim = Simulation::with_extension(config, f, p, cell).unwrap();
+        let mut sim = lone_cell(&model, &mesh.vertices, vel, config, substeps, 1.0, 1, None);
         let mut straddled = false;
         for _ in 0..steps {
             sim.step().unwrap();
@@ -1020,6 +992,50 @@ fn near_box_prefilter_is_conservative() {
     );
 }
 
+/// A lone cell (no fluid: the membrane's type has no pair force) at `x`, every vertex at
+/// velocity `vel`, its vertices integrated by the cell when sub-stepped.
+#[allow(clippy::too_many_arguments)]
+fn lone_cell(
+    model: &MembraneModel,
+    x: &[DVec3],
+    vel: DVec3,
+    config: SimConfig,
+    substeps: u32,
+    kbt: f64,
+    seed: u64,
+    viscosity: Option<MembraneViscosity>,
+) -> Simulation<Cell> {
+    let none = PairParams {
+        a: 0.0,
+        gamma: 0.0,
+        kbt: 0.0,
+        ..PairParams::groot_warren()
+    };
+    let ty = TypeSpec {
+        integrated_by_extension: substeps > 1,
+        ..TypeSpec::new("membrane")
+    };
+    let f = ForceField::new(vec![ty], none).unwrap();
+    let mut p = Particles::with_capacity(x.len());
+    for (k, v) in x.iter().enumerate() {
+        p.push(*v, vel, 0, k as u32);
+    }
+    let cfg = CellConfig {
+        first: 0,
+        outer_type: u16::MAX,
+        inner_type: u16::MAX,
+        check_every: 0,
+        wall: None,
+        reflection: MembraneReflection::BounceBack,
+        kbt,
+        seed,
+        substeps,
+        viscosity,
+    };
+    let cell = Cell::new(model.clone(), cfg, x.to_vec()).unwrap();
+    Simulation::with_extension(config, f, p, cell).unwrap()
+}
+
 /// A lone cell (no fluid, no noise) with the membrane viscosity `eta` (model units, E τ/r²),
 /// `substeps` membrane steps per step `dt`: relaxed at rest, then stretched in its plane (x–z) by
 /// the area-preserving affine map (x, z) → ((1 + ε)x, z/(1 + ε)) about its centroid, ε = 0.05, and
@@ -1030,42 +1046,18 @@ fn kelvin_voigt_relaxation(n: usize, dt: f64, substeps: u32, visc: MembraneVisco
     let l = 14.0;
     let centre = DVec3::splat(l / 2.0);
     let (mesh, model) = cell_mesh(n, centre);
-    let none = PairParams {
-        a: 0.0,
-        gamma: 0.0,
-        kbt: 0.0,
-        ..PairParams::groot_warren()
-    };
-    let cfg = CellConfig {
-        first: 0,
-        outer_type: u16::MAX,
-        inner_type: u16::MAX,
-        check_every: 0,
-        wall: None,
-        reflection: MembraneReflection::BounceBack,
-        kbt: 0.0,
-        seed: 3,
-        substeps,
-        viscosity: Some(visc),
-    };
     let eta = visc.eta();
     let build = |x: &[DVec3], visc: MembraneViscosity, dt: f64, substeps: u32| {
-        let ty = TypeSpec {
-            integrated_by_extension: substeps > 1,
-            ..TypeSpec::new("membrane")
-        };
-        let f = ForceField::new(vec![ty], none).unwrap();
-        let mut p = Particles::with_capacity(x.len());
-        for (k, v) in x.iter().enumerate() {
-            p.push(*v, DVec3::ZERO, 0, k as u32);
-        }
-        let cfg = CellConfig {
-            viscosity: Some(visc),
+        lone_cell(
+            &model,
+            x,
+            DVec3::ZERO,
+            SimConfig::new(DVec3::splat(l), dt, 5),
             substeps,
-            ..cfg.clone()
-        };
-        let cell = Cell::new(model.clone(), cfg, x.to_vec()).unwrap();
-        Simulation::with_extension(SimConfig::new(DVec3::splat(l), dt, 5), f, p, cell).unwrap()
+            0.0,
+            3,
+            Some(visc),
+        )
     };
     // the mesh's disc lies in the x–z plane (its axis is y)
     let anisotropy = |x: &[DVec3]| {
