@@ -99,31 +99,8 @@ fn cell_crossing_the_periodic_boundary_is_unchanged() {
     let run = |l: f64| {
         let (mesh, model) = cell_mesh(200, DVec3::splat(6.0));
         let config = SimConfig::new(DVec3::splat(l), 0.001, 5);
-        let none = PairParams {
-            a: 0.0,
-            gamma: 0.0,
-            kbt: 0.0,
-            ..PairParams::groot_warren()
-        };
-        let f = ForceField::new(vec![TypeSpec::new("membrane")], none).unwrap();
-        let mut p = Particles::with_capacity(mesh.vertices.len());
-        for (k, v) in mesh.vertices.iter().enumerate() {
-            p.push(*v, DVec3::new(20.0, 7.0, -3.0), 0, k as u32);
-        }
-        let cfg = CellConfig {
-            first: 0,
-            outer_type: u16::MAX,
-            inner_type: u16::MAX,
-            check_every: 0,
-            wall: None,
-            reflection: MembraneReflection::BounceBack,
-            kbt: 1.0,
-            seed: 1,
-            substeps: 1,
-            viscosity: None,
-        };
-        let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
-        let mut sim = Simulation::with_extension(config, f, p, cell).unwrap();
+        let vel = DVec3::new(20.0, 7.0, -3.0);
+        let mut sim = lone_cell(&model, &mesh.vertices, vel, config, 1, 1.0, 1, None);
         sim.run(1800).unwrap();
         let cell = sim.extension();
         let (a, v) = cell.model().area_volume(cell.vertices()).unwrap();
