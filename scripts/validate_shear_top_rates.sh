@@ -5,7 +5,7 @@
 # 130 and 260 1/s, elastic and with the membrane viscosity of Hochmuth's recovery (6.3e-7 N·s/m,
 # central form). Runs through `hemodpd sweep` (resumable: run it again to continue) and prints
 # the table with Fischer's cells at each rate (tests/data/shear_ttf_fischer_28.9mPas.csv).
-# About 45 minutes on 2 cores.
+# About 50 minutes on 2 cores (measured: 7.5 and 22 min at 130 1/s, 10.7 min central at 260 1/s).
 #   scripts/validate_shear_top_rates.sh [SWEEP_DIR] [STRAIN]
 # STRAIN (default 10) shortens the runs for a quick check of the script itself.
 set -euo pipefail
