@@ -415,31 +415,8 @@ fn cell_straddling_the_shear_plane_is_unchanged() {
     let run = |l: f64, rate: f64| {
         let (mesh, model) = cell_mesh(200, DVec3::new(6.0, 1.0, 6.0));
         let config = SimConfig::new(DVec3::splat(l), 0.001, 5).with_shear_rate(rate);
-        let none = PairParams {
-            a: 0.0,
-            gamma: 0.0,
-            kbt: 0.0,
-            ..PairParams::groot_warren()
-        };
-        let f = ForceField::new(vec![TypeSpec::new("membrane")], none).unwrap();
-        let mut p = Particles::with_capacity(mesh.vertices.len());
-        for (k, v) in mesh.vertices.iter().enumerate() {
-            p.push(*v, DVec3::new(3.0, -7.0, 1.0), 0, k as u32);
-        }
-        let cfg = CellConfig {
-            first: 0,
-            outer_type: u16::MAX,
-            inner_type: u16::MAX,
-            check_every: 0,
-            wall: None,
-            reflection: MembraneReflection::BounceBack,
-            kbt: 1.0,
-            seed: 1,
-            substeps: 1,
-            viscosity: None,
-        };
-        let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
-        let mut sim = Simulation::with_extension(config, f, p, cell).unwrap();
+        let vel = DVec3::new(3.0, -7.0, 1.0);
+        let mut sim = lone_cell(&model, &mesh.vertices, vel, config, 1, 1.0, 1, None);
         let mut straddled = false;
         for _ in 0..1500 {
             sim.step().unwrap();
