@@ -25,6 +25,7 @@ pub mod meshio;
 pub mod motion;
 pub mod params;
 pub mod precondition;
+pub mod recovery;
 pub mod reference;
 pub mod respa;
 pub mod shape;

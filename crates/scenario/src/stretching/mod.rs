@@ -1,5 +1,8 @@
 //! The optical-tweezers stretching scenario (SPEC §2): no fluid, static equilibrium per force,
-//! diameters compared with Mills et al. (2004).
+//! diameters compared with Mills et al. (2004); optionally released after the last force, its
+//! recovery compared with Hochmuth et al. (1979) ([`recovery`]).
+
+pub mod recovery;
 
 use crate::context::{RunContext, RunError};
 use crate::file::{one, yes, Check, ScenarioError};
@@ -114,6 +117,9 @@ pub struct StretchingScenario {
     pub seed: u64,
     pub membrane: MembraneSection,
     pub stretching: StretchingSection,
+    /// Release after the last force and follow the recovery (optional).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub recovery: Option<recovery::RecoverySection>,
     #[serde(default)]
     pub output: StretchingOutput,
     /// Directory of the scenario file (to resolve relative paths); not part of the file.
@@ -215,6 +221,9 @@ pub fn validate(s: &StretchingScenario, file: &str) -> Result<(), ScenarioError>
     if st.max_iterations == 0 {
         return Err(c.fail("stretching.max_iterations", 0, "a positive integer"));
     }
+    if let Some(r) = &s.recovery {
+        recovery::validate(r, &c)?;
+    }
     Ok(())
 }
 
@@ -260,7 +269,7 @@ pub(crate) fn check_files(st: &StretchingScenario, file: &str) -> Result<(), Sce
 
 /// Mills, Qie, Dao, Lim, Suresh (2004), healthy RBC (korali digitisation, see the file's first line):
 /// force pN, D_T, D_A, then error-bar ends D_T lo/hi, D_A lo/hi, µm.
-pub const MILLS_2004_CSV: &str = include_str!("../data/mills2004_stretching_korali.csv");
+pub const MILLS_2004_CSV: &str = include_str!("../../data/mills2004_stretching_korali.csv");
 
 /// One row of the Mills et al. data.
 #[derive(Clone, Copy, Debug)]
@@ -641,6 +650,43 @@ pub fn run_from(
         }
         None => None,
     };
+    let recovery_json = match &s.recovery {
+        None => serde_json::Value::Null,
+        Some(r) => {
+            let last = points.last().expect("a non-empty protocol");
+            let mu0 = prepared.params.shear_modulus_n_per_m * 1e6;
+            let stop = || {
+                crate::context::INTERRUPTED.load(std::sync::atomic::Ordering::Relaxed)
+                    || ctx.stop_at_step == Some(total as u64)
+            };
+            if ctx.progress {
+                eprintln!("  released at {:.2} pN: following the recovery for {} s", last.force, r.duration_s);
+            }
+            match recovery::run(r, &prepared.model, &prepared.mesh.vertices, &last.positions, mu0, stop)? {
+                Some(rec) => {
+                    recovery::write_csv(&ctx.out_dir.join("recovery.csv"), &rec)?;
+                    let j = recovery::results(r, &rec, last.force);
+                    if ctx.progress {
+                        eprintln!(
+                            "  recovery: t_c = {} s (Hochmuth 1979: {:.3} ± {:.3} s), {} steps",
+                            j["t_c_s"].as_f64().map(|v| format!("{v:.4}")).unwrap_or("-".into()),
+                            j["hochmuth1979"]["mean_t_c_s"].as_f64().unwrap_or(f64::NAN),
+                            j["hochmuth1979"]["sd_t_c_s"].as_f64().unwrap_or(f64::NAN),
+                            j["integration"]["steps"]
+                        );
+                    }
+                    j
+                }
+                // stopped: the checkpoint holds every force, a resume redoes the release
+                None => {
+                    return Err(RunError::Interrupted {
+                        step: total as u64,
+                        dir: ctx.out_dir.clone(),
+                    })
+                }
+            }
+        }
+    };
     let force: Vec<f64> = points.iter().map(|p| p.force).collect();
     let da: Vec<f64> = points.iter().map(|p| p.axial_diameter).collect();
     let dt: Vec<f64> = points.iter().map(|p| p.transverse_diameter).collect();
@@ -664,6 +710,12 @@ pub fn run_from(
         "checkpoint_file": ctx.out_dir.join(crate::run_dir::CHECKPOINT_FILE),
         "solve_seconds": earlier_seconds + t0.elapsed().as_secs_f64(),
     }))
+    .map(|mut out: serde_json::Value| {
+        if !recovery_json.is_null() {
+            out["recovery"] = recovery_json;
+        }
+        out
+    })
 }
 
 fn without_positions(p: &StretchPoint) -> StretchPoint {
@@ -702,9 +754,12 @@ impl crate::kind::Kind for StretchingScenario {
     fn check_files(&self, file: &str) -> Result<(), ScenarioError> {
         check_files(self, file)
     }
-    /// Forces done.
+    /// Forces done (and the release, one more, when there is a `[recovery]`).
     fn schedule_end(&self) -> (u64, &'static str) {
-        (self.stretching.forces_pn.len() as u64, "forces")
+        match self.recovery {
+            Some(_) => (self.stretching.forces_pn.len() as u64 + 1, "forces and the release"),
+            None => (self.stretching.forces_pn.len() as u64, "forces"),
+        }
     }
     fn run_from(&self, ctx: &RunContext, checkpoint: Option<&Checkpoint>) -> Result<serde_json::Value, RunError> {
         run_from(self, ctx, checkpoint)
