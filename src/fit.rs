@@ -146,7 +146,30 @@ const SHIPPED: &[Shipped] = &[Shipped {
     ],
     observables: mills2004_observables,
     about: "Mills et al. 2004 optical-tweezers stretching: the axial and transverse diameters at each of the 13 forces against the measured means, σ = half the error bar",
+},
+Shipped {
+    name: "hochmuth1979",
+    file_name: "recovery.toml",
+    scenario: include_str!("../scenarios/recovery.toml"),
+    sets: &["output.shapes=false"],
+    parameters: &[
+        ("reduced_volume", "membrane.reference={ spheroid = { reduced_volume = % } }"),
+        ("persistence_scale", "membrane.persistence_scale"),
+        ("membrane_viscosity", "recovery.membrane_viscosity_pa_s_m"),
+    ],
+    observables: hochmuth1979_observables,
+    about: "Hochmuth et al. 1979 recovery after release: the Kelvin–Voigt recovery time t_c of the recovery scenario against the mean of his four cells, σ = their SD",
 }];
+
+/// Hochmuth 1979: t_c against the mean of the four cells fitted the same way, σ = their SD.
+fn hochmuth1979_observables() -> Vec<ObservableSpec> {
+    let r = hemodpd_scenario::stretching::recovery::hochmuth_reference();
+    vec![ObservableSpec {
+        pointer: "/recovery/t_c_s".into(),
+        target: r["mean_t_c_s"].as_f64().unwrap_or(f64::NAN),
+        sigma: r["sd_t_c_s"].as_f64().unwrap_or(f64::NAN),
+    }]
+}
 
 /// Mills 2004: D_A and D_T at each force of the shipped stretching scenario (the order of its
 /// `results.mills2004.per_force`), σ = half of each error bar.
@@ -741,12 +764,30 @@ pub fn fit(a: FitArgs) -> Result<Value> {
             })
         })
         .collect();
-    let mut sets = BTreeMap::new();
+    let mut sets: BTreeMap<String, Vec<String>> = BTreeMap::new();
     for e in &exps {
-        let kind = hemodpd_scenario::load(&e.scenario, &e.sets)?.kind().to_string();
-        let list: &mut Vec<String> = sets.entry(kind).or_default();
+        let scenario = hemodpd_scenario::load(&e.scenario, &e.sets)?;
+        let kind = scenario.kind().to_string();
+        let mut assigned = Vec::new();
         for (k, (i, _, _)) in e.keys.iter().enumerate() {
-            let s = e.assignment(k, values[*i]);
+            assigned.push(e.assignment(k, values[*i]));
+        }
+        // a membrane calibrated in a stretching scenario is the cell of the capillary and shear
+        // kinds: the same keys under [cell], with the recovery's viscosity form
+        if let hemodpd_scenario::Scenario::Stretching(st) = &scenario {
+            let form = st.recovery.as_ref().map(|r| r.membrane_viscosity_form);
+            let cell = cell_overrides(&assigned, form);
+            for kind in ["capillary", "shear"] {
+                let list = sets.entry(kind.to_string()).or_default();
+                for s in &cell {
+                    if !list.contains(s) {
+                        list.push(s.clone());
+                    }
+                }
+            }
+        }
+        let list = sets.entry(kind).or_default();
+        for s in assigned {
             if !list.contains(&s) {
                 list.push(s);
             }
@@ -783,9 +824,13 @@ pub fn fit(a: FitArgs) -> Result<Value> {
     println!("|---|---|---|---|");
     for i in 0..p {
         println!(
-            "| {} | {:.6} | {} | {}–{}{} |",
+            "| {} | {} | {} | {}–{}{} |",
             params[i].name,
-            values[i],
+            if values[i] != 0.0 && values[i].abs() < 1e-3 {
+                format!("{:.4e}", values[i])
+            } else {
+                format!("{:.6}", values[i])
+            },
             sigmas[i]
                 .map(|s| format!("{s:.3e}"))
                 .unwrap_or_else(|| "not constrained".into()),
@@ -812,6 +857,30 @@ pub fn fit(a: FitArgs) -> Result<Value> {
         out.join("fit.json").display()
     );
     Ok(result)
+}
+
+/// The stretching scenario's membrane overrides `assigned` as overrides of a cell kind's `[cell]`
+/// (`membrane.reference`, `membrane.persistence_scale`, `recovery.membrane_viscosity_pa_s_m`
+/// with the viscosity `form`); other keys have no counterpart and are left out.
+fn cell_overrides(assigned: &[String], form: Option<hemodpd_scenario::cell::ViscosityForm>) -> Vec<String> {
+    let mut out = Vec::new();
+    for s in assigned {
+        if let Some(v) = s.strip_prefix("membrane.reference=") {
+            out.push(format!("cell.reference={v}"));
+        } else if let Some(v) = s.strip_prefix("membrane.persistence_scale=") {
+            out.push(format!("cell.persistence_scale={v}"));
+        } else if let Some(v) = s.strip_prefix("recovery.membrane_viscosity_pa_s_m=") {
+            out.push(format!("cell.membrane_viscosity_pa_s_m={v}"));
+            if let Some(f) = form {
+                let name = match f {
+                    hemodpd_scenario::cell::ViscosityForm::Fedosov => "fedosov",
+                    hemodpd_scenario::cell::ViscosityForm::Central => "central",
+                };
+                out.push(format!("cell.membrane_viscosity_form=\"{name}\""));
+            }
+        }
+    }
+    out
 }
 
 /// The overrides of a `calibrated.toml` for a scenario of `kind` (`hemodpd run --params`).

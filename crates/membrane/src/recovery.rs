@@ -81,7 +81,9 @@ pub struct Recovery {
 /// Errors of the recovery.
 #[derive(Debug, thiserror::Error)]
 pub enum RecoveryError {
-    #[error("no dissipation: the membrane viscosity and the medium's drag are both zero, so a released cell never settles")]
+    #[error(
+        "no dissipation: the membrane viscosity and the medium's drag are both zero, so a released cell never settles"
+    )]
     NoDissipation,
     #[error("bad recovery options: {0}")]
     Options(String),

@@ -17,7 +17,13 @@ fn stretched(forces: &[f64]) -> (MembraneModel, f64, Vec<DVec3>) {
     let mesh = initial_mesh(&EvansFung::healthy_um(), n, 3).unwrap();
     let params = ModelParams::coarse_grained(n, 300.0).unwrap();
     let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, DEFAULT_K_AREA_N_PER_M, DEFAULT_K_VOLUME_N_PER_M2);
-    let model = MembraneModel::new(&mesh.topology().unwrap(), &mesh.vertices, &c, ReferenceState::StressFree).unwrap();
+    let model = MembraneModel::new(
+        &mesh.topology().unwrap(),
+        &mesh.vertices,
+        &c,
+        ReferenceState::StressFree,
+    )
+    .unwrap();
     let opts = StretchOptions {
         forces: forces.to_vec(),
         end_fraction: 0.05,
@@ -59,8 +65,16 @@ fn the_fictitious_mass_converges_linearly() {
     let go = |inertia: f64| recover(&model, &x, &options(ETA_M, mu0, 0.3, inertia), || false).unwrap();
     let (a, b, c) = (go(1e-3), go(5e-4), go(2.5e-4));
     let (la, lb, lc) = (lw(&a), lw(&b), lw(&c));
-    let e1: Vec<f64> = extrapolate(&a, &b).unwrap().iter().map(|s| s.length_over_width()).collect();
-    let e2: Vec<f64> = extrapolate(&b, &c).unwrap().iter().map(|s| s.length_over_width()).collect();
+    let e1: Vec<f64> = extrapolate(&a, &b)
+        .unwrap()
+        .iter()
+        .map(|s| s.length_over_width())
+        .collect();
+    let e2: Vec<f64> = extrapolate(&b, &c)
+        .unwrap()
+        .iter()
+        .map(|s| s.length_over_width())
+        .collect();
     let worst = |p: &[f64], q: &[f64]| p.iter().zip(q).map(|(u, v)| (u / v - 1.0).abs()).fold(0.0, f64::max);
     eprintln!(
         "L/W {:.3} → {:.3} in 0.3 s; {}, {}, {} steps; largest change 1e-3 → 5e-4: {:.2e}, 5e-4 → 2.5e-4: {:.2e}; between the extrapolations {:.2e}",
@@ -75,10 +89,16 @@ fn the_fictitious_mass_converges_linearly() {
     );
     assert!(la[0] > 1.5, "not stretched: L/W {}", la[0]);
     assert!(lc[lc.len() - 1] < la[0] - 0.3, "not recovering: {lc:?}");
-    assert!(worst(&la, &lb) > 1e-3, "the mass does not show: the test has lost its point");
+    assert!(
+        worst(&la, &lb) > 1e-3,
+        "the mass does not show: the test has lost its point"
+    );
     assert!(worst(&e1, &e2) < 4e-3, "not linear in the mass: {e1:?} against {e2:?}");
     for s in a.samples.iter().chain(&c.samples) {
-        assert!(s.area_deviation.abs() < 0.01 && s.volume_deviation.abs() < 0.01, "{s:?}");
+        assert!(
+            s.area_deviation.abs() < 0.01 && s.volume_deviation.abs() < 0.01,
+            "{s:?}"
+        );
     }
 }
 
@@ -133,7 +153,17 @@ fn a_small_stretch_relaxes_at_its_affine_mode_time() {
     let stiffness = (energy(h) - 2.0 * energy(0.0) + energy(-h)) / (h * h);
     let t_affine = friction / stiffness;
     let anisotropy = |s: &RecoverySample| s.axial_diameter / s.transverse_diameter;
-    let r0 = recover(&model, &rest, &RecoveryOptions { samples: 1, duration: 1e-3, ..opts }, || false).unwrap();
+    let r0 = recover(
+        &model,
+        &rest,
+        &RecoveryOptions {
+            samples: 1,
+            duration: 1e-3,
+            ..opts
+        },
+        || false,
+    )
+    .unwrap();
     let base = anisotropy(&r0.samples[0]);
     let r = recover(&model, &affine(0.05), &opts, || false).unwrap();
     let d0 = anisotropy(&r.samples[0]) - base;
@@ -156,7 +186,10 @@ fn a_small_stretch_relaxes_at_its_affine_mode_time() {
         100.0 * (tau / t_affine - 1.0),
         ETA_M / mu0
     );
-    assert!(tau / t_affine - 1.0 < 0.03 && tau / t_affine - 1.0 > -0.25, "τ {tau} against {t_affine}");
+    assert!(
+        tau / t_affine - 1.0 < 0.03 && tau / t_affine - 1.0 > -0.25,
+        "τ {tau} against {t_affine}"
+    );
 }
 
 /// Bad options are errors, not a silent run: no dissipation at all, a negative drag.
@@ -168,10 +201,16 @@ fn bad_options_are_errors() {
         drag: 0.0,
         ..options(ETA_M, mu0, 0.1, DEFAULT_INERTIA)
     };
-    assert!(matches!(recover(&model, &x, &none, || false), Err(RecoveryError::NoDissipation)));
+    assert!(matches!(
+        recover(&model, &x, &none, || false),
+        Err(RecoveryError::NoDissipation)
+    ));
     let negative = RecoveryOptions {
         drag: -1.0,
         ..options(ETA_M, mu0, 0.1, DEFAULT_INERTIA)
     };
-    assert!(matches!(recover(&model, &x, &negative, || false), Err(RecoveryError::Options(_))));
+    assert!(matches!(
+        recover(&model, &x, &negative, || false),
+        Err(RecoveryError::Options(_))
+    ));
 }

@@ -463,6 +463,18 @@ fn save_checkpoint(
     points: &[StretchPoint],
     seconds: f64,
 ) -> Result<(), RunError> {
+    save_checkpoint_marked(s, ctx, points, seconds, false)
+}
+
+/// [`save_checkpoint`], marked finished when `finished` (after the recovery: a resume then says
+/// the run is done instead of redoing the release).
+fn save_checkpoint_marked(
+    s: &StretchingScenario,
+    ctx: &RunContext,
+    points: &[StretchPoint],
+    seconds: f64,
+    finished: bool,
+) -> Result<(), RunError> {
     let mut ck = Checkpoint::new(
         points.len() as u64,
         points.len() as f64,
@@ -472,6 +484,9 @@ fn save_checkpoint(
     ck.set_scalar("scenario_kind", ScalarValue::Str("stretching".into()));
     ck.set_scalar("base_dir", ScalarValue::Str(s.base_dir.to_string_lossy().into_owned()));
     ck.set_scalar("solve_seconds", ScalarValue::F64(seconds));
+    if finished {
+        ck.set_scalar("finished", ScalarValue::Str("yes".into()));
+    }
     let json = serde_json::to_vec(points).map_err(|e| RunError::Output(format!("checkpoint: {e}")))?;
     ck.insert_u8("points_json", json);
     if let Some(last) = points.last() {
@@ -660,12 +675,20 @@ pub fn run_from(
                     || ctx.stop_at_step == Some(total as u64)
             };
             if ctx.progress {
-                eprintln!("  released at {:.2} pN: following the recovery for {} s", last.force, r.duration_s);
+                eprintln!(
+                    "  released at {:.2} pN: following the recovery for {} s",
+                    last.force, r.duration_s
+                );
             }
             match recovery::run(r, &prepared.model, &prepared.mesh.vertices, &last.positions, mu0, stop)? {
                 Some(rec) => {
                     recovery::write_csv(&ctx.out_dir.join("recovery.csv"), &rec)?;
                     let j = recovery::results(r, &rec, last.force);
+                    let mut kept: Vec<StretchPoint> = points.iter().map(without_positions).collect();
+                    if let Some(k) = kept.last_mut() {
+                        k.positions = last.positions.clone();
+                    }
+                    save_checkpoint_marked(s, ctx, &kept, earlier_seconds + t0.elapsed().as_secs_f64(), true)?;
                     if ctx.progress {
                         eprintln!(
                             "  recovery: t_c = {} s (Hochmuth 1979: {:.3} ± {:.3} s), {} steps",
@@ -741,6 +764,7 @@ impl crate::kind::Kind for StretchingScenario {
     const SWEEP_COLUMNS: &'static [crate::kind::SweepColumn] = &[
         ("RMS D_A (um)", "/mills2004/rms_axial_um", false),
         ("RMS D_T (um)", "/mills2004/rms_transverse_um", false),
+        ("recovery t_c (s)", "/recovery/t_c_s", false),
     ];
     fn validate(&self, file: &str) -> Result<(), ScenarioError> {
         validate(self, file)

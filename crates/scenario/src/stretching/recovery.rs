@@ -1,16 +1,16 @@
 //! `[recovery]` of the stretching scenario: the cell is released from the last force and
 //! recovers at the rate its membrane viscosity sets, as in Hochmuth, Worthy & Evans (1979);
 //! L/W against time is fitted with their Kelvin–Voigt form and compared with their four cells
-//! (docs/scenarios.md, "Recovery after release"; docs/validation.md).
+//! (docs/model.md §7c; docs/validation.md, "Recovery after release").
 
 use crate::capillary::fit_hochmuth;
 use crate::cell::ViscosityForm;
 use crate::context::RunError;
 use crate::file::{Check, ScenarioError};
+use glam::DVec3;
 use hemodpd_membrane::recovery::{self, Recovery, RecoveryOptions, RecoverySample, DEFAULT_INERTIA};
 use hemodpd_membrane::viscosity::MembraneViscosity;
 use hemodpd_membrane::MembraneModel;
-use glam::DVec3;
 use serde::{Deserialize, Serialize};
 use serde_json::json;
 use std::path::Path;
@@ -103,7 +103,10 @@ pub const HOCHMUTH_1979_CSV: &str = include_str!("../../data/relaxation_hochmuth
 /// Hochmuth's cells, each as (t, λ) series.
 pub fn hochmuth_1979() -> Vec<(u32, Vec<f64>, Vec<f64>)> {
     let mut cells: Vec<(u32, Vec<f64>, Vec<f64>)> = Vec::new();
-    for l in HOCHMUTH_1979_CSV.lines().filter(|l| !l.starts_with('#') && !l.starts_with("cell")) {
+    for l in HOCHMUTH_1979_CSV
+        .lines()
+        .filter(|l| !l.starts_with('#') && !l.starts_with("cell"))
+    {
         let c: Vec<f64> = l.split(',').filter_map(|x| x.trim().parse().ok()).collect();
         if c.len() != 3 {
             continue;
