@@ -764,7 +764,6 @@ impl crate::kind::Kind for StretchingScenario {
     const SWEEP_COLUMNS: &'static [crate::kind::SweepColumn] = &[
         ("RMS D_A (um)", "/mills2004/rms_axial_um", false),
         ("RMS D_T (um)", "/mills2004/rms_transverse_um", false),
-        ("recovery t_c (s)", "/recovery/t_c_s", false),
     ];
     fn validate(&self, file: &str) -> Result<(), ScenarioError> {
         validate(self, file)
