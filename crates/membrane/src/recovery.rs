@@ -24,7 +24,7 @@ use glam::DVec3;
 /// The default inertial fraction m/Γ ÷ Γ/μ0. The shapes converge linearly as it shrinks (the
 /// central form leaves some motions free, and they ring): at 5e-4 a single run's recovery time is
 /// ≈ 4 % long at N = 500, so [`extrapolate`] combines it with a run at half of it
-/// ([`tests::the_fictitious_mass_converges_linearly`]).
+/// (`recovery::tests::the_fictitious_mass_converges_linearly`).
 pub const DEFAULT_INERTIA: f64 = 5e-4;
 
 /// How the cell recovers.

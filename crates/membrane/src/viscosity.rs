@@ -70,6 +70,13 @@ impl MembraneViscosity {
         3f64.sqrt() * (self.gamma_t + 0.25 * self.gamma_c)
     }
 
+    /// The viscosity the friction acts as in a deformation without rotation (a stretched cell
+    /// relaxing), on a flat triangular lattice: (√3/2) γ_T + (√3/4) γ_C; 7/13 η_m for
+    /// [`Self::from_eta`], η_m for [`Self::central_from_eta`].
+    pub fn rotation_free_eta(&self) -> f64 {
+        3f64.sqrt() * (0.5 * self.gamma_t + 0.25 * self.gamma_c)
+    }
+
     /// Whether both coefficients are finite and ≥ 0.
     pub fn is_valid(&self) -> bool {
         self.gamma_t.is_finite() && self.gamma_c.is_finite() && self.gamma_t >= 0.0 && self.gamma_c >= 0.0

@@ -259,9 +259,11 @@ pub fn results(r: &RecoverySection, rec: &Extrapolated, release_force_pn: f64) -
     // η_m/μ0, s (μ0 pN/µm = 1e-6 N/m); the form's Kelvin–Voigt time for a deformation without
     // rotation: Fedosov's form acts as 7/13 η_m there (docs/model.md §7b), the central one as η_m
     let tkv = eta / (opts.shear_modulus * 1e-6);
-    let acting = match r.membrane_viscosity_form {
-        ViscosityForm::Fedosov => 7.0 / 13.0,
-        ViscosityForm::Central => 1.0,
+    let v = link_friction(r);
+    let acting = if v.eta() > 0.0 {
+        v.rotation_free_eta() / v.eta()
+    } else {
+        1.0
     };
     json!({
         "released_from_force_pn": release_force_pn,
