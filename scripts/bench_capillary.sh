@@ -16,7 +16,7 @@ mkdir -p "$OUT"
 for n in $NS; do for dt in $DTS; do for s in $SEEDS; do
   d="$OUT/n$n-dt$dt-s$s"
   [ -f "$d/summary.json" ] && continue
-  nice -n 10 ./target/release/hemodpd run scenarios/capillary.toml --threads "$THREADS" --out "$d" --quiet \
+  nice -n 10 ./target/release/hemodpd run scenarios/capillary.toml --set cell.parameters=paper --threads "$THREADS" --out "$d" --quiet \
     --set cell.vertices="$n" --set model.timestep="$dt" --set seed="$s" --set output.frame_every_s=0 \
     --set "stage=[{name = \"rest\", duration_s = 0.002}, {name = \"parachute\", duration_s = $FLOW_S, mean_velocity_m_per_s = 3e-4}]"
 done; done; done

@@ -15,7 +15,7 @@ nice -n 10 cargo build --release --quiet -j 2
 mkdir -p "$OUT"
 go() { # dir, η_m, k
   [ -f "$1/summary.json" ] && return
-  nice -n 10 ./target/release/hemodpd run scenarios/capillary.toml --threads "$THREADS" --quiet --out "$1" \
+  nice -n 10 ./target/release/hemodpd run scenarios/capillary.toml --set cell.parameters=paper --threads "$THREADS" --quiet --out "$1" \
     --set cell.membrane_viscosity_pa_s_m="$2" --set model.membrane_substeps="$3" --set output.frame_every_s=0 \
     --set model.thermal_factor=10.841 \
     --set "stage=[{name = \"rest\", duration_s = 0.0005}, {name = \"flow\", duration_s = $FLOW_S, mean_velocity_m_per_s = 1e-3}]"

@@ -13,7 +13,7 @@ printf "%-6s %-8s %12s %16s %14s %10s %10s\n" N threads "steps/s" "s per sim. s"
 for n in ${ns[@]}; do
   for t in 1 2; do
     out="$tmp/n$n-t$t"
-    ./target/release/hemodpd run scenarios/shear.toml --set cell.vertices=$n --set shear.duration_strain=1.5 \
+    ./target/release/hemodpd run scenarios/shear.toml --set cell.parameters=paper --set cell.vertices=$n --set shear.duration_strain=1.5 \
       --set output.frame_every_strain=0 --threads $t --out "$out" --quiet
     python3 - "$out/summary.json" "$n" "$t" <<'PY'
 import json, sys

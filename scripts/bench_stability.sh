@@ -60,11 +60,11 @@ echo; echo "| N | thermal factor f | Δt | verdict | membrane T / fluid T | area
 echo "|---|---|---|---|---|---|"
 for n in $NS; do for f in $FS; do
   fset="model.thermal_factor=$f"; [ "$f" = exact ] && fset='model.thermal_factor="exact"'
-  tau=$(./target/release/hemodpd run scenarios/capillary.toml --explain-units --set "$fset" --set 'stage=[{name = "rest", duration_s = 0.001}]' | sed -n 's/.*time τ=[^0-9]*\([0-9.e+-]*\) s.*/\1/p')
+  tau=$(./target/release/hemodpd run scenarios/capillary.toml --set cell.parameters=paper --explain-units --set "$fset" --set 'stage=[{name = "rest", duration_s = 0.001}]' | sed -n 's/.*time τ=[^0-9]*\([0-9.e+-]*\) s.*/\1/p')
   for dt in $CELL_DTS; do
     d="$OUT/cell-n$n-f$f-dt$dt"
     dur=$(python3 -c "print($CELL_STEPS * $dt * $tau)")
-    $H run scenarios/capillary.toml --threads "$THREADS" --quiet --out "$d" --set cell.vertices="$n" --set "$fset" \
+    $H run scenarios/capillary.toml --set cell.parameters=paper --threads "$THREADS" --quiet --out "$d" --set cell.vertices="$n" --set "$fset" \
       --set model.timestep="$dt" --set output.frame_every_s=0 --set output.sample_every_steps=10 \
       --set model.crossing_check_every_steps=100 --set "stage=[{name = \"rest\", duration_s = $dur}]" \
       >/dev/null 2>"$d.err" || true

@@ -25,7 +25,7 @@ REF=${REF:?with SKIP_FINE set, REF must name an earlier N = 23867 run directory}
 echo "preconditioner: $PRECONDITIONER, threads: $THREADS"
 echo "load before: $(cat /proc/loadavg)"
 for n in $NS; do
-  ./target/release/hemodpd run scenarios/stretching.toml --set membrane.vertices=$n --set output.shapes=false \
+  ./target/release/hemodpd run scenarios/stretching.toml --set membrane.parameters=paper --set membrane.vertices=$n --set output.shapes=false \
     --set stretching.preconditioner=\"$PRECONDITIONER\" --threads "$THREADS" --out "$OUT/n$n" --quiet
 done
 echo "load after: $(cat /proc/loadavg)"

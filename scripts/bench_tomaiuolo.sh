@@ -11,7 +11,7 @@ cargo build --release --quiet
 rm -rf "$OUT"; mkdir -p "$OUT"
 run() {
   local name=$1; shift
-  ./target/release/hemodpd run scenarios/capillary-tomaiuolo.toml --threads "$THREADS" --quiet \
+  ./target/release/hemodpd run scenarios/capillary-tomaiuolo.toml --set cell.parameters=paper --threads "$THREADS" --quiet \
     --out "$OUT/$name" --set output.frame_every_s=0 "$@"
 }
 run d6.6

@@ -215,7 +215,7 @@ wait_job() { # JOB SECONDS
 
 # 7. a point that meets its time limit: a capillary point of about 85 s on one CPU, given one minute
 CAP="$ROOT/scenarios/capillary.toml"
-CGRID=(--vary seed=1 --set stage.1.duration_s=0.02 --set stage.2.duration_s=0.01)
+CGRID=(--vary seed=1 --set cell.parameters=paper --set stage.1.duration_s=0.02 --set stage.2.duration_s=0.01)
 CW="$WORK/slurm-capillary"
 "$HEMODPD" sweep "$CAP" "${CGRID[@]}" --emit-slurm "$CW" --slurm-time 1 --slurm-cpus 1 --slurm-partition debug
 grep -q '^#SBATCH --signal=B:TERM@30$' "$CW/sweep.sbatch" || fail "no --signal line for a 1-minute limit: $(grep SBATCH "$CW/sweep.sbatch")"

@@ -17,8 +17,8 @@ bin=target/release/hemodpd
 common=(--set 'model.fluid="auto"' --set 'model.thermal_factor="exact"' --set 'shear.box_um=[16.0,14.0,12.0]'
   --set "shear.duration_strain=$strain" --set "shear.analysis_start_strain=$(python3 -c "print(0.3 * $strain)")"
   --vary shear.shear_rate_per_s=130,260 --quiet)
-"$bin" sweep scenarios/shear.toml "${common[@]}" --out "$dir/elastic"
-"$bin" sweep scenarios/shear.toml "${common[@]}" --out "$dir/central" \
+"$bin" sweep scenarios/shear.toml --set cell.parameters=paper "${common[@]}" --out "$dir/elastic"
+"$bin" sweep scenarios/shear.toml --set cell.parameters=paper "${common[@]}" --out "$dir/central" \
   --set cell.membrane_viscosity_pa_s_m=6.3e-7 --set 'cell.membrane_viscosity_form="central"'
 python3 - "$dir" <<'EOF'
 import csv, json, statistics, sys

@@ -21,20 +21,20 @@ UNIFORM_NS=${UNIFORM_NS:-"100 500 5000"}
 list=$(echo $NS | tr ' ' ',')
 ulist=$(echo $UNIFORM_NS | tr ' ' ',')
 
-$B sweep scenarios/stretching.toml --vary membrane.vertices=$list --out "$OUT/fig1-stress-free" --quiet
+$B sweep scenarios/stretching.toml --set membrane.parameters=paper --vary membrane.vertices=$list --out "$OUT/fig1-stress-free" --quiet
 $B plot "$OUT/fig1-stress-free/sweep.json" -o "$FIG/fig1_stretching_stress-free.png" --title "Stretching, stress-free reference (Fig. 1)"
-$B sweep scenarios/stretching.toml --vary membrane.vertices=$ulist --set membrane.reference=uniform --out "$OUT/fig1-uniform" --quiet
+$B sweep scenarios/stretching.toml --set membrane.parameters=paper --vary membrane.vertices=$ulist --set membrane.reference=uniform --out "$OUT/fig1-uniform" --quiet
 $B plot "$OUT/fig1-uniform/sweep.json" -o "$FIG/fig1_stretching_uniform.png" --title "Stretching, uniform L0 (the paper's literal convention)"
 
-$B sweep scenarios/stretching.toml --vary membrane.persistence_scale=0.9,1.0,1.1 --out "$OUT/inset" --quiet
-$B run scenarios/stretching.toml --set membrane.persistence_length_nm=7.5 --out "$OUT/inset/p=7.5nm" --quiet
+$B sweep scenarios/stretching.toml --set membrane.parameters=paper --vary membrane.persistence_scale=0.9,1.0,1.1 --out "$OUT/inset" --quiet
+$B run scenarios/stretching.toml --set membrane.parameters=paper --set membrane.persistence_length_nm=7.5 --out "$OUT/inset/p=7.5nm" --quiet
 $B plot "$OUT/inset/sweep.json" "$OUT/inset/p=7.5nm" -o "$FIG/fig1_inset_persistence.png" --title "N = 500: persistence-length sensitivity (Fig. 1 inset)"
 
-$B sweep scenarios/stretching.toml --vary seed=1,2,3,4,5 --out "$OUT/seeds" --quiet
+$B sweep scenarios/stretching.toml --set membrane.parameters=paper --vary seed=1,2,3,4,5 --out "$OUT/seeds" --quiet
 
 for n in $NS; do
   case $n in 100|500|23867) ;; *) continue ;; esac
-  $B run scenarios/stretching.toml --set membrane.vertices=$n --set 'stretching.forces_pn=[0.0, 90.0, 180.0]' --out "$OUT/fig2-n$n" --quiet
+  $B run scenarios/stretching.toml --set membrane.parameters=paper --set membrane.vertices=$n --set 'stretching.forces_pn=[0.0, 90.0, 180.0]' --out "$OUT/fig2-n$n" --quiet
   edges=""; [ "$n" -le 500 ] && edges="--edges"
   $B render "$OUT/fig2-n$n/shapes.h5" $edges --columns 3 -o "$FIG/fig2_shapes_n$n.png"
 done

@@ -16,7 +16,10 @@ fn scenario_path() -> PathBuf {
 /// The shipped scenario with a small cell (N = 100) in a small box (14 × 12 × 12 µm: ~6000
 /// particles), then `sets`.
 fn small(sets: &[&str]) -> Scenario {
+    // the paper's membrane: these tests pin the engine and the regimes of the paper's model
+    // (the calibrated cell's are in docs/validation.md, "The calibrated cell")
     let mut all: Vec<String> = vec![
+        "cell.parameters=paper".into(),
         "cell.vertices=100".into(),
         "shear.box_um=[14.0, 12.0, 12.0]".into(),
         "output.frame_every_strain=0".into(),
@@ -272,6 +275,9 @@ fn sweep_grid(dir: &Path, name: &str, sets: &[&str], vary: &str) -> Vec<Value> {
         out.to_string_lossy().into_owned(),
         "--vary".into(),
         vary.into(),
+        // the tables of docs/validation.md §7 are the paper's set's (the elastic model)
+        "--set".into(),
+        "cell.parameters=paper".into(),
     ];
     for s in sets {
         args.push("--set".into());

@@ -211,6 +211,7 @@ fn perturbed_cell(kick: f64, stiff: [f64; 3], seed: u64) -> Result<Simulation<Ce
         kbt: 1.0,
         seed,
         substeps: 1,
+        substep_forces: hemodpd_membrane::coupling::SubstepForces::Inner,
         viscosity: None,
     };
     let cell = Cell::new(model, cfg, x)?;

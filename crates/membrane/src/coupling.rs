@@ -57,7 +57,7 @@ use std::time::Instant;
 
 use crate::forces::{ForceError, ForceWorkspace};
 use crate::mesh::winding_number;
-use crate::respa::{inner_steps, InnerSweep};
+use crate::respa::{inner_steps, inner_sweeps, InnerSweep};
 use crate::viscosity::{shardlow_sweep, MembraneViscosity};
 use crate::MembraneModel;
 
@@ -179,6 +179,28 @@ pub struct CellConfig {
     /// ([`hemodpd_engine::TypeSpec::integrated_by_extension`]); with k = 1 it must not be.
     #[serde(default = "one_substep")]
     pub substeps: u32,
+    /// With k > 1: whether the membrane's elastic forces and the wall repulsion are evaluated
+    /// in every inner step ([`SubstepForces::Inner`], r-RESPA) or once per fluid step with the
+    /// slow forces ([`SubstepForces::Outer`]: only the drift and the viscosity sweep are
+    /// sub-stepped).
+    #[serde(default)]
+    pub substep_forces: SubstepForces,
+}
+
+/// Where the membrane's elastic forces act when the membrane is sub-stepped (k > 1).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SubstepForces {
+    /// r-RESPA: velocity Verlet with the membrane forces in each of the k inner steps
+    /// ([`crate::respa::inner_steps`]); k force evaluations per fluid step.
+    #[default]
+    Inner,
+    /// The membrane forces join the slow forces (two half-kicks of ½Δt per fluid step, as
+    /// with k = 1, where they are stable); the inner steps are only drift and sweep
+    /// ([`crate::respa::inner_sweeps`]), which is what the viscosity's friction cap needs. One
+    /// force evaluation per fluid step; the slow motion feels the same friction as with
+    /// `Inner` at the same k.
+    Outer,
 }
 
 fn one_substep() -> u32 {
@@ -505,7 +527,7 @@ impl Cell {
         self.x = state.unwrapped.iter().map(|v| DVec3::from_array(*v)).collect();
         self.x_prev = self.x.clone();
         self.stats = state.stats;
-        if self.config.substeps > 1 && !state.fast_forces.is_empty() {
+        if self.inner_forces() && !state.fast_forces.is_empty() {
             self.forces = state.fast_forces.iter().map(|v| DVec3::from_array(*v)).collect();
             self.fast_ready = true;
         }
@@ -517,7 +539,7 @@ impl Cell {
         CellState {
             unwrapped: self.x.iter().map(|v| v.to_array()).collect(),
             stats: self.stats.clone(),
-            fast_forces: if self.config.substeps > 1 && self.fast_ready {
+            fast_forces: if self.inner_forces() && self.fast_ready {
                 self.forces.iter().map(|v| v.to_array()).collect()
             } else {
                 Vec::new()
@@ -676,6 +698,11 @@ impl Cell {
         Ok(())
     }
 
+    /// Whether the membrane forces are inner forces (sub-stepped with them, r-RESPA).
+    fn inner_forces(&self) -> bool {
+        self.config.substeps > 1 && self.config.substep_forces == SubstepForces::Inner
+    }
+
     /// Reads the vertex masses from the force field (once).
     fn load_vertex_masses(&mut self, s: &StateMut<'_>) {
         if self.vertex_masses.len() != self.x.len() {
@@ -713,7 +740,10 @@ impl Cell {
     /// the step for the bounce pass.
     fn substep(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
         self.load_vertex_masses(s);
-        self.ensure_fast_forces(s)?;
+        let inner_forces = self.inner_forces();
+        if inner_forces {
+            self.ensure_fast_forces(s)?;
+        }
         let t0 = Instant::now();
         let range = self.vertex_range();
         let k = self.config.substeps;
@@ -742,22 +772,27 @@ impl Cell {
         let (model, wall) = (&self.model, self.config.wall.as_ref());
         let (ws, energy) = (&mut self.workspace, &mut self.energy);
         let mut force_s = 0.0;
-        let result = inner_steps(
-            &mut self.x,
-            &mut self.vel_buf,
-            &mut self.forces,
-            &self.vertex_masses,
-            k,
-            h,
-            sweep,
-            |x, f| {
-                let t = Instant::now();
-                let r = fast_forces(model, ws.as_mut(), wall, &domain, x, f);
-                force_s += t.elapsed().as_secs_f64();
-                *energy = r?;
-                Ok(())
-            },
-        );
+        let result = if inner_forces {
+            inner_steps(
+                &mut self.x,
+                &mut self.vel_buf,
+                &mut self.forces,
+                &self.vertex_masses,
+                k,
+                h,
+                sweep,
+                |x, f| {
+                    let t = Instant::now();
+                    let r = fast_forces(model, ws.as_mut(), wall, &domain, x, f);
+                    force_s += t.elapsed().as_secs_f64();
+                    *energy = r?;
+                    Ok(())
+                },
+            )
+        } else {
+            inner_sweeps(&mut self.x, &mut self.vel_buf, &self.vertex_masses, k, h, sweep);
+            Ok(())
+        };
         if let Err(e) = result {
             self.fast_ready = false;
             return Err(self.force_error(e, s.step));
@@ -1003,7 +1038,7 @@ impl Extension for Cell {
 
     fn add_forces(&mut self, s: &mut StateMut<'_>) -> Result<(), EngineError> {
         self.check_types(s)?;
-        if self.config.substeps > 1 {
+        if self.inner_forces() {
             // the membrane forces and the wall repulsion are inner forces; only the external
             // ones join the slow force (the first call, at the initial force evaluation,
             // computes the fast forces for the first step)

@@ -83,3 +83,36 @@ pub fn inner_steps<E>(
     }
     Ok(())
 }
+
+/// The inner loop when only the drift and the viscosity are sub-stepped
+/// ([`crate::coupling::SubstepForces::Outer`]: the membrane's elastic forces act with the slow
+/// ones, as half-kicks of ½Δt): `k` times x += ½h v; the sweep of `sweep` (if any) with step
+/// h; x += ½h v. Under a constant force F kicked in once per Δt, the slow motion of a link moves
+/// at F/γ_eff with γ_eff = (2μ/h) tanh(γh/2μ) = μ/(h(a/(1 − a) + ½)), the friction of
+/// [`inner_steps`] at the same k (`outer_mode_feels_the_inner_friction`). Momentum is conserved
+/// by each sweep; deterministic as [`inner_steps`].
+pub fn inner_sweeps(x: &mut [DVec3], v: &mut [DVec3], mass: &[f64], k: u32, h: f64, sweep: Option<InnerSweep<'_>>) {
+    let n = x.len();
+    debug_assert!(v.len() == n && mass.len() == n);
+    for j in 0..k {
+        for i in 0..n {
+            x[i] += v[i] * (0.5 * h);
+        }
+        if let Some(s) = sweep {
+            shardlow_sweep(
+                s.links,
+                x,
+                v,
+                mass,
+                s.viscosity,
+                s.kbt,
+                h,
+                s.seed,
+                s.first_key.wrapping_add(j as u64),
+            );
+        }
+        for i in 0..n {
+            x[i] += v[i] * (0.5 * h);
+        }
+    }
+}

@@ -88,13 +88,62 @@ impl MembraneViscosity {
 #[inline]
 fn link_gaussians(key: u64, link: u64) -> [f64; 3] {
     let base = key.wrapping_add(link.wrapping_mul(4).wrapping_mul(GOLDEN));
-    let u = |k: u64| {
-        let h = mix64(base.wrapping_add(k.wrapping_mul(GOLDEN)));
-        ((h >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    };
+    let u = |k: u64| uniform(base, k);
     let (r1, p1) = ((-2.0 * u(1).ln()).sqrt(), std::f64::consts::TAU * u(2));
     let r2 = (-2.0 * u(3).ln()).sqrt() * (std::f64::consts::TAU * u(4)).cos();
     [r1 * p1.cos(), r1 * p1.sin(), r2]
+}
+
+/// One standard Gaussian number of link `link` under `key`: the first of [`link_gaussians`]
+/// (what the central form needs, its noise acting along the link only).
+#[inline]
+fn link_gaussian(key: u64, link: u64) -> f64 {
+    let base = key.wrapping_add(link.wrapping_mul(4).wrapping_mul(GOLDEN));
+    (-2.0 * uniform(base, 1).ln()).sqrt() * (std::f64::consts::TAU * uniform(base, 2)).cos()
+}
+
+/// The counter-based uniform number `k` of a link's stream `base`, in (0, 1).
+#[inline]
+fn uniform(base: u64, k: u64) -> f64 {
+    let h = mix64(base.wrapping_add(k.wrapping_mul(GOLDEN)));
+    ((h >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+}
+
+/// The exact Ornstein–Uhlenbeck factors of one link over a step: its relative velocity's
+/// components along and across the link are multiplied by `a_par`, `a_perp` and get `s_par`,
+/// `s_perp` times a standard Gaussian of noise. They depend on the link only through its reduced
+/// mass, so a sweep computes them once per mass pair.
+#[derive(Clone, Copy, Debug)]
+struct Decay {
+    a_par: f64,
+    s_par: f64,
+    a_perp: f64,
+    s_perp: f64,
+}
+
+impl Decay {
+    fn new(mu: f64, visc: &MembraneViscosity, kbt: f64, dt: f64) -> Self {
+        let decay = |gamma: f64| {
+            let x = -gamma * dt / mu;
+            // a = e^x, 1 − a² = −expm1(2x) (accurate when x is small)
+            (x.exp(), (kbt / mu * -(2.0 * x).exp_m1()).max(0.0).sqrt())
+        };
+        let (a_perp, s_perp) = decay(visc.gamma_t);
+        let (a_par, s_par) = decay(visc.gamma_t + visc.gamma_c);
+        Decay {
+            a_par,
+            s_par,
+            a_perp,
+            s_perp,
+        }
+    }
+
+    #[inline]
+    fn apply(&self, v: DVec3, e: DVec3, xi: DVec3) -> DVec3 {
+        let v_par = e * v.dot(e);
+        let xi_par = e * xi.dot(e);
+        (v_par * self.a_par + xi_par * self.s_par) + ((v - v_par) * self.a_perp + (xi - xi_par) * self.s_perp)
+    }
 }
 
 /// The exact Ornstein–Uhlenbeck update over `dt` of one link's relative velocity `v`, with unit
@@ -112,22 +161,18 @@ pub fn relative_velocity_update(
     dt: f64,
     xi: DVec3,
 ) -> DVec3 {
-    let decay = |gamma: f64| {
-        let x = -gamma * dt / mu;
-        // a = e^x, 1 − a² = −expm1(2x) (accurate when x is small)
-        (x.exp(), (kbt / mu * -(2.0 * x).exp_m1()).max(0.0).sqrt())
-    };
-    let (a_perp, s_perp) = decay(visc.gamma_t);
-    let (a_par, s_par) = decay(visc.gamma_t + visc.gamma_c);
-    let v_par = e * v.dot(e);
-    let xi_par = e * xi.dot(e);
-    (v_par * a_par + xi_par * s_par) + ((v - v_par) * a_perp + (xi - xi_par) * s_perp)
+    Decay::new(mu, visc, kbt, dt).apply(v, e, xi)
 }
 
 /// One Shardlow sweep of the membrane viscosity over `links`, in their order: `x` are the
 /// (unwrapped) vertex positions, `vel` the vertex velocities (updated), `mass` the vertex
 /// masses. `seed` and `step` key the noise (with the link index). Returns nothing; momentum is
 /// conserved to round-off by every link update.
+///
+/// The decay factors are computed once per reduced mass (once per sweep for equal masses). The
+/// central form (γ_T = 0) changes only the component along the link, so it draws one Gaussian
+/// per link instead of three (the component along ê of an isotropic Gaussian vector is one
+/// standard Gaussian); without noise (kBT = 0) none is drawn.
 #[allow(clippy::too_many_arguments)]
 pub fn shardlow_sweep(
     links: &[[u32; 2]],
@@ -141,15 +186,34 @@ pub fn shardlow_sweep(
     step: u64,
 ) {
     let key = step_key(seed ^ VISCOSITY_SALT, step);
+    let central = visc.gamma_t == 0.0;
+    let noisy = kbt > 0.0;
+    let mut cached: Option<(f64, Decay)> = None;
     for (l, link) in links.iter().enumerate() {
         let (i, j) = (link[0] as usize, link[1] as usize);
         let (mi, mj) = (mass[i], mass[j]);
         let mu = mi * mj / (mi + mj);
-        let d = x[i] - x[j];
-        let e = d.normalize_or_zero();
+        let decay = match cached {
+            Some((m, d)) if m == mu => d,
+            _ => {
+                let d = Decay::new(mu, visc, kbt, dt);
+                cached = Some((mu, d));
+                d
+            }
+        };
+        let e = (x[i] - x[j]).normalize_or_zero();
         let v = vel[i] - vel[j];
-        let xi = DVec3::from_array(link_gaussians(key, l as u64));
-        let dv = relative_velocity_update(v, e, mu, visc, kbt, dt, xi) - v;
+        let dv = if central {
+            let xi = if noisy { link_gaussian(key, l as u64) } else { 0.0 };
+            e * (v.dot(e) * (decay.a_par - 1.0) + xi * decay.s_par)
+        } else {
+            let xi = if noisy {
+                DVec3::from_array(link_gaussians(key, l as u64))
+            } else {
+                DVec3::ZERO
+            };
+            decay.apply(v, e, xi) - v
+        };
         // mᵢΔvᵢ = μΔv = −mⱼΔvⱼ: the pair's momentum is unchanged, its relative velocity
         // changes by Δv
         let p = dv * mu;

@@ -18,6 +18,7 @@ pub mod fluid_choice;
 pub mod kind;
 pub mod mesh_cache;
 pub mod movie;
+pub mod parameter_sets;
 pub mod registry;
 pub mod run_dir;
 pub mod shear;

@@ -88,6 +88,8 @@ pub fn load_str(text: &str, file: &str, sets: &[String]) -> Result<Scenario, Sce
             })
         }
     };
+    // a named membrane parameter set fills the keys the file does not give
+    crate::parameter_sets::expand(&mut table, &kind, file)?;
     Scenario::parse(&kind, toml::Value::Table(table), file).unwrap_or_else(|| {
         Err(ScenarioError::Value {
             file: file.into(),

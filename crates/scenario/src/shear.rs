@@ -284,6 +284,7 @@ impl ShearScenario {
             let _ = writeln!(s, "  warning: {w}");
         }
         s.push_str(&units::explain_fluid(&d));
+        s.push_str(&self.cell.explain_parameters());
         Ok(s)
     }
 }

@@ -196,6 +196,7 @@ fn moving_cell_with(
         kbt: 1.0,
         seed: 1,
         substeps,
+        substep_forces: SubstepForces::Inner,
         viscosity,
     };
     let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
@@ -307,6 +308,7 @@ fn cell_pushed_against_the_wall_stays_out_of_it() {
         kbt: 1.0,
         seed: 2,
         substeps: 1,
+        substep_forces: SubstepForces::Inner,
         viscosity: None,
     };
     let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
@@ -488,6 +490,7 @@ fn fluid_stays_on_its_side_of_a_cell_on_the_shear_plane() {
         kbt: 1.0,
         seed: 1,
         substeps: 1,
+        substep_forces: SubstepForces::Inner,
         viscosity: None,
     };
     let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
@@ -570,6 +573,7 @@ fn membrane_viscosity_thermalises_a_cell_at_kbt() {
         kbt,
         seed: 5,
         substeps: 1,
+        substep_forces: SubstepForces::Inner,
         viscosity: Some(MembraneViscosity {
             gamma_t: 1000.0,
             gamma_c: 1000.0 / 3.0,
@@ -610,7 +614,7 @@ fn membrane_viscosity_is_deterministic_across_threads() {
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
-            let mut sim = cell_in_fluid(1, Some(MembraneViscosity::from_eta(2000.0)), 9);
+            let mut sim = cell_in_fluid(1, SubstepForces::Inner, Some(MembraneViscosity::from_eta(2000.0)), 9);
             sim.run(300).unwrap();
             let pt = sim.particles();
             (pt.pos.clone(), pt.vel.clone(), sim.extension().stats().clone())
@@ -639,6 +643,7 @@ fn invalid_membrane_viscosity_is_an_error() {
             kbt: 1.0,
             seed: 1,
             substeps: 1,
+            substep_forces: SubstepForces::Inner,
             viscosity: Some(MembraneViscosity {
                 gamma_t: gt,
                 gamma_c: gc,
@@ -730,7 +735,12 @@ fn substepped_cell_keeps_fluid_on_its_side_and_momentum() {
 }
 
 /// A cell in a 12³ box of fluid (ρ = 3, Δt = 0.002 and the fluid's kBT = 1).
-fn cell_in_fluid(substeps: u32, viscosity: Option<MembraneViscosity>, seed: u64) -> Simulation<Cell> {
+fn cell_in_fluid(
+    substeps: u32,
+    forces: SubstepForces,
+    viscosity: Option<MembraneViscosity>,
+    seed: u64,
+) -> Simulation<Cell> {
     let l = 12.0;
     let centre = DVec3::splat(l / 2.0);
     let (mesh, model) = cell_mesh(300, centre);
@@ -757,6 +767,7 @@ fn cell_in_fluid(substeps: u32, viscosity: Option<MembraneViscosity>, seed: u64)
         kbt: 1.0,
         seed,
         substeps,
+        substep_forces: forces,
         viscosity,
     };
     let cell = Cell::new(model, cfg, mesh.vertices.clone()).unwrap();
@@ -779,7 +790,25 @@ fn cell_in_fluid(substeps: u32, viscosity: Option<MembraneViscosity>, seed: u64)
 fn substepped_viscous_cell_in_fluid_is_at_kbt() {
     let visc = MembraneViscosity::from_eta(14_000.0);
     assert!((visc.gamma_t + visc.gamma_c - 9950.0).abs() < 10.0);
-    let mut sim = cell_in_fluid(25, Some(visc), 11);
+    viscous_cell_at_kbt(visc, SubstepForces::Inner);
+}
+
+/// As [`substepped_viscous_cell_in_fluid_is_at_kbt`] with the membrane forces outside the inner
+/// steps ([`SubstepForces::Outer`]) and the central form at the same γ_C + γ_T (what the
+/// calibrated cell runs with): the vertices at kBT within the same bound, area and volume held,
+/// no crossing, and the total momentum of fluid and vertices conserved to round-off.
+#[test]
+fn outer_substeps_keep_a_viscous_cell_at_kbt_and_momentum() {
+    let visc = MembraneViscosity {
+        gamma_t: 0.0,
+        gamma_c: 9950.0,
+    };
+    viscous_cell_at_kbt(visc, SubstepForces::Outer);
+}
+
+fn viscous_cell_at_kbt(visc: MembraneViscosity, forces: SubstepForces) {
+    let mut sim = cell_in_fluid(25, forces, Some(visc), 11);
+    let p0 = momentum(sim.particles());
     let (a0, v0) = {
         let c = sim.extension();
         c.model().area_volume(c.vertices()).unwrap()
@@ -809,11 +838,13 @@ fn substepped_viscous_cell_in_fluid_is_at_kbt() {
     let se = (means.iter().map(|m| (m - t).powi(2)).sum::<f64>() / (nb - 1.0) / nb).sqrt();
     let s = sim.extension().stats();
     eprintln!(
-        "k = 25, η_m on: vertex temperature {t:.4} kBT (SE {se:.4}); max |ΔA/A| {da:.2e}, |ΔV/V| {dv:.2e}; {s:?}"
+        "k = 25 ({forces:?}), η_m on: vertex temperature {t:.4} kBT (SE {se:.4}); max |ΔA/A| {da:.2e}, |ΔV/V| {dv:.2e}; {s:?}"
     );
     assert_eq!(s.misplaced, 0);
     assert!((t - 1.0).abs() < 4.0 * se + 0.02, "vertex temperature {t} (SE {se})");
     assert!(da < 0.03 && dv < 0.02, "area {da}, volume {dv}");
+    let dp = (momentum(sim.particles()) - p0).length();
+    assert!(dp < 1e-10 * momentum_scale(sim.particles()), "momentum changed by {dp}");
 }
 
 /// Sub-stepping with the viscosity is deterministic: 40 steps give bit-identical positions,
@@ -822,17 +853,29 @@ fn substepped_viscous_cell_in_fluid_is_at_kbt() {
 /// it, a new `Cell`) ends bit-identical to the uninterrupted one.
 #[test]
 fn substepped_cell_is_deterministic_across_threads_and_restarts() {
+    for forces in [SubstepForces::Inner, SubstepForces::Outer] {
+        substepped_cell_is_deterministic(forces);
+    }
+}
+
+fn substepped_cell_is_deterministic(forces: SubstepForces) {
     let visc = MembraneViscosity::from_eta(2000.0);
     let run = |threads: usize, stop: Option<u64>| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
         pool.install(|| {
-            let mut sim = cell_in_fluid(3, Some(visc), 3);
+            let mut sim = cell_in_fluid(3, forces, Some(visc), 3);
             if let Some(k) = stop {
                 sim.run(k).unwrap();
                 let (state, cell) = sim.into_parts();
                 let json = serde_json::to_string(&cell.state()).unwrap();
                 let saved: CellState = serde_json::from_str(&json).unwrap();
-                assert_eq!(saved.fast_forces.len(), cell.vertices().len());
+                // the inner mode keeps the last inner forces; the outer one has none to keep
+                let kept = if forces == SubstepForces::Inner {
+                    cell.vertices().len()
+                } else {
+                    0
+                };
+                assert_eq!(saved.fast_forces.len(), kept);
                 let fresh = Cell::new(cell.model().clone(), cell.config().clone(), cell.vertices().to_vec())
                     .unwrap()
                     .with_state(saved)
@@ -878,6 +921,7 @@ fn substeps_and_vertex_type_must_agree() {
         kbt: 1.0,
         seed: 1,
         substeps,
+        substep_forces: SubstepForces::Inner,
         viscosity: None,
     };
     for (substeps, integrated, frozen) in [(2, false, false), (1, true, false), (3, true, true)] {
@@ -984,6 +1028,7 @@ fn lone_cell(
         kbt,
         seed,
         substeps,
+        substep_forces: SubstepForces::Inner,
         viscosity,
     };
     let cell = Cell::new(model.clone(), cfg, x.to_vec()).unwrap();

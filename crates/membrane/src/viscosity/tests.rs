@@ -120,6 +120,36 @@ fn ou_mean_and_stationary_variance() {
     );
 }
 
+/// The central form (γ_T = 0) draws one Gaussian per link, along it: over M = 40 000 links the
+/// parallel component's mean after two steps is the exact decay and its stationary variance is
+/// kBT/μ (5 SE, as above), while the perpendicular component is not touched at all (to
+/// round-off). The first Gaussian of a link is the same number in both draws.
+#[test]
+fn central_form_noise_acts_along_the_link_only() {
+    let visc = MembraneViscosity {
+        gamma_t: 0.0,
+        gamma_c: 40.0,
+    };
+    let (mu, dt, kbt): (f64, f64, f64) = (2.0 / 3.0, 0.01, 1.0);
+    let m = 40_000usize;
+    let v0 = DVec3::new(0.5, 2.0, -1.5);
+    let (p0, q0) = split(v0);
+    let a_p: f64 = (-40.0 * 2.0 * dt / mu as f64).exp();
+    let v = run_links(m, &visc, kbt, dt, 2, v0);
+    let mean_p = v.iter().map(|u| split(*u).0).sum::<f64>() / m as f64;
+    let se_p = (kbt / mu * (1.0 - a_p * a_p) / m as f64).sqrt();
+    assert!((mean_p - p0 * a_p).abs() < 5.0 * se_p, "mean {mean_p} vs {}", p0 * a_p);
+    assert!(v.iter().all(|u| (split(*u).1 - q0).length() < 1e-12 * q0.length()));
+    let v = run_links(m, &visc, kbt, dt, 200, v0);
+    let var_p = v.iter().map(|u| split(*u).0.powi(2)).sum::<f64>() / m as f64;
+    assert!(
+        (var_p / (kbt / mu) - 1.0).abs() < 5.0 * (2.0 / m as f64).sqrt(),
+        "parallel variance {var_p}"
+    );
+    let k = step_key(5 ^ VISCOSITY_SALT, 9);
+    assert_eq!(link_gaussian(k, 3), link_gaussians(k, 3)[0]);
+}
+
 /// Stiff friction (γΔt/μ = 1.5·10⁴, far beyond any explicit scheme's limit): the update stays
 /// finite and resamples the relative velocity from Maxwell at once (variance kBT/μ within 5 SE).
 #[test]
@@ -286,6 +316,69 @@ fn substeps_lift_the_friction_cap() {
             ks / rate
         );
         assert!(((ks / rate) / gamma_eff - 1.0).abs() < 0.02);
+    }
+}
+
+/// The outer mode ([`crate::respa::inner_sweeps`]): the spring acts as two half-kicks of ½Δt
+/// per step Δt = 0.0025 (as with k = 1), and only the drift and the sweep are sub-stepped. The
+/// relaxing link of [`substeps_lift_the_friction_cap`] then relaxes at k_s/γ_eff with the same
+/// γ_eff = μ/(h(a/(1 − a) + ½)) as the inner mode at the same k (within 2 %), for the central
+/// form too (γ_T = 0, the link along x: only its stretching is damped).
+#[test]
+fn outer_mode_feels_the_inner_friction() {
+    let (dt, mu, ks) = (0.0025, 0.5, 100.0);
+    let forms = [
+        MembraneViscosity {
+            gamma_t: 7442.5,
+            gamma_c: 7442.5 / 3.0,
+        },
+        MembraneViscosity::central_from_eta(10505.7),
+    ];
+    for visc in forms {
+        let gamma = visc.gamma_t + visc.gamma_c;
+        for k in [25u32, 50, 122] {
+            let h = dt / k as f64;
+            let a = (-gamma * h / mu).exp();
+            let gamma_eff = mu / (h * (a / (1.0 - a) + 0.5));
+            let links = [[0u32, 1u32]];
+            let mass = [1.0, 1.0];
+            let (l0, x0) = (1.0, 0.5);
+            let mut x = [DVec3::new(l0 + x0, 0.0, 0.0), DVec3::ZERO];
+            let mut v = [DVec3::ZERO; 2];
+            let spring = |x: &[DVec3; 2]| {
+                let d = x[0] - x[1];
+                let fi = -ks * (d.length() - l0) * d.normalize();
+                [fi, -fi]
+            };
+            let mut f = spring(&x);
+            let steps = (gamma_eff / ks / dt) as u64;
+            let mut ext = Vec::new();
+            for step in 0..steps {
+                for i in 0..2 {
+                    v[i] += f[i] * (0.5 * dt / mass[i]);
+                }
+                let sweep = crate::respa::InnerSweep {
+                    links: &links,
+                    viscosity: &visc,
+                    kbt: 0.0,
+                    seed: 1,
+                    first_key: step * k as u64,
+                };
+                crate::respa::inner_sweeps(&mut x, &mut v, &mass, k, h, Some(sweep));
+                f = spring(&x);
+                for i in 0..2 {
+                    v[i] += f[i] * (0.5 * dt / mass[i]);
+                }
+                ext.push((x[0] - x[1]).length() - l0);
+            }
+            let (i, j) = (steps as usize / 4, steps as usize - 1);
+            let rate = (ext[i] / ext[j]).ln() / ((j - i) as f64 * dt);
+            eprintln!(
+                "outer, k = {k}: γ_eff predicted {gamma_eff:.1}, measured {:.1} (γ_T + γ_C = {gamma:.1})",
+                ks / rate
+            );
+            assert!(((ks / rate) / gamma_eff - 1.0).abs() < 0.02, "k = {k}, γ = {gamma}");
+        }
     }
 }
 

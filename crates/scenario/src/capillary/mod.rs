@@ -283,9 +283,10 @@ impl CapillaryScenario {
     pub fn explain_units(&self) -> Result<String, RunError> {
         let (sys, d) = self.mapping()?;
         Ok(format!(
-            "{}{}",
+            "{}{}{}",
             units::explain(&sys, &d.map, &d.fluid),
-            units::explain_fluid(&d)
+            units::explain_fluid(&d),
+            self.cell.explain_parameters()
         ))
     }
 }

@@ -296,6 +296,7 @@ pub(crate) fn cell_config(plan: &impl CellPlan, first: usize) -> CellConfig {
         seed: plan.seed(),
         viscosity: cell_membrane_viscosity(plan.cell(), plan.map()),
         substeps: plan.substeps(),
+        substep_forces: m.membrane_substep_forces,
     }
 }
 

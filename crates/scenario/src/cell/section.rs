@@ -60,6 +60,11 @@ pub struct CellSection {
     /// Temperature, K (default 300, the paper's).
     #[serde(default = "d_temp")]
     pub temperature_k: f64,
+    /// A named membrane parameter set (`"paper"`, `"calibrated"`; crate::parameter_sets) whose
+    /// values fill `reference`, `persistence_scale` and the membrane viscosity where the file
+    /// gives none. Absent: the keys' own defaults, the paper's set.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parameters: Option<String>,
     /// "stress-free" (default: the resting cell), "uniform" (the paper's single L0), or
     /// `{ spheroid = { reduced_volume = v } }` (the oblate spheroid of the cell's area and
     /// reduced volume v, 0.65–1).
@@ -88,6 +93,31 @@ pub struct CellSection {
 }
 
 impl CellSection {
+    /// The `--explain-units` lines on the membrane's free parameters: the named set, if any, and
+    /// the values in effect.
+    pub(crate) fn explain_parameters(&self) -> String {
+        let set = match self.parameters.as_deref().and_then(crate::parameter_sets::find) {
+            Some(p) => format!("set {:?}: {}", p.name, p.origin),
+            None => "no named set (cell.parameters): each key's default, the paper's set".into(),
+        };
+        let reference = match self.reference {
+            ReferenceState::Spheroid { reduced_volume } => {
+                format!("the oblate spheroid of reduced volume {reduced_volume}")
+            }
+            ReferenceState::StressFree => "the resting biconcave cell".into(),
+            ReferenceState::Uniform => "uniform (the paper's one L0)".into(),
+        };
+        format!(
+            "Membrane parameters: {set}\n    stress-free on {reference}, persistence length × {}, η_m = {:.4e} N·s/m ({} form)\n",
+            self.persistence_scale,
+            self.membrane_viscosity_pa_s_m,
+            match self.membrane_viscosity_form {
+                ViscosityForm::Central => "central",
+                ViscosityForm::Fedosov => "fedosov",
+            }
+        )
+    }
+
     /// Checks `cell.mesh_file`, if one is given (relative to `base`): it exists, reads, and has
     /// `cell.vertices` vertices.
     pub(crate) fn check_mesh_file(&self, file: &str, base: &std::path::Path) -> Result<(), crate::file::ScenarioError> {
@@ -166,6 +196,7 @@ pub struct ModelKeys<'a> {
     pub wall_repulsion_range_rc: f64,
     pub membrane_reflection: MembraneReflection,
     pub membrane_substeps: &'a SubstepSetting,
+    pub membrane_substep_forces: hemodpd_membrane::coupling::SubstepForces,
 }
 
 /// Declares a kind's `[model]` section: the keys every cell-in-flow kind shares, in the file's
@@ -224,6 +255,12 @@ macro_rules! model_section {
             /// (50 there) lifts the cap (docs/model.md §7b).
             #[serde(default = "crate::cell::section::d_substeps")]
             pub membrane_substeps: $crate::cell::SubstepSetting,
+            /// With k > 1 sub-steps: "inner" (default: r-RESPA, the membrane's elastic forces in
+            /// each inner step, k evaluations per fluid step) or "outer" (the elastic forces
+            /// once per fluid step with the fluid's; only the drift and the viscosity sweep are
+            /// sub-stepped: the same friction, ≈ k × fewer force evaluations; docs/model.md §7b).
+            #[serde(default)]
+            pub membrane_substep_forces: hemodpd_membrane::coupling::SubstepForces,
         }
 
         impl $name {
@@ -240,6 +277,7 @@ macro_rules! model_section {
                     wall_repulsion_range_rc: self.wall_repulsion_range_rc,
                     membrane_reflection: self.membrane_reflection,
                     membrane_substeps: &self.membrane_substeps,
+                    membrane_substep_forces: self.membrane_substep_forces,
                 }
             }
         }

@@ -47,6 +47,11 @@ pub struct MembraneSection {
     /// Temperature, K (default 300).
     #[serde(default = "default_temperature")]
     pub temperature_k: f64,
+    /// A named membrane parameter set (`"paper"`, `"calibrated"`; crate::parameter_sets) whose
+    /// values fill `reference`, `persistence_scale` and, with `[recovery]`, its membrane
+    /// viscosity where the file gives none. Absent: the keys' own defaults, the paper's set.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub parameters: Option<String>,
     /// `"stress-free"` (default: each link and triangle unstrained at rest), `"uniform"` (the
     /// paper's one L0), or `{ spheroid = { reduced_volume = v } }` (unstrained on the oblate
     /// spheroid of the cell's area and reduced volume v, 0.65–1).
