@@ -153,6 +153,8 @@ fn user_mesh_reproduces_the_golden_energies() {
     let mesh_file = golden_dir.join("mesh_N500.vertices.csv");
     let s = scenario(&[
         &format!("membrane.mesh_file=\"{}\"", mesh_file.display()),
+        // the golden energies are the paper's model's (persistence scale 1)
+        "membrane.parameters=paper",
         "membrane.reference=uniform",
         "membrane.area_constraint_n_per_m=1e-3",
         "membrane.volume_constraint_n_per_m2=1e3",

@@ -210,8 +210,16 @@ impl DirLock {
 impl Drop for DirLock {
     fn drop(&mut self) {
         if let Some((key, path, file)) = self.held.take() {
-            // unlink while still locked: a waiting process then finds a new file (see acquire)
-            let _ = std::fs::remove_file(&path);
+            // unlink while still locked: a waiting process then finds a new file (see acquire);
+            // only our own file: if the directory was removed and made again under us, the
+            // lock file now at the path is another process's
+            let ours = match (file.metadata(), std::fs::metadata(&path)) {
+                (Ok(a), Ok(b)) => a.ino() == b.ino() && a.dev() == b.dev(),
+                _ => false,
+            };
+            if ours {
+                let _ = std::fs::remove_file(&path);
+            }
             drop(file);
             if let Some(h) = HELD.lock().unwrap_or_else(|p| p.into_inner()).as_mut() {
                 h.remove(&key);
@@ -454,6 +462,21 @@ mod tests {
         drop(lock);
         assert!(!d.join(LOCK_FILE).exists());
         std::fs::remove_dir_all(&d).unwrap();
+    }
+
+    /// A run whose directory is deleted and made again under it (and locked there by another
+    /// run, whose lock file is a new file at the same path) leaves that lock file alone when it
+    /// ends: releasing removes only the file it locked.
+    #[test]
+    fn release_leaves_another_runs_lock_file_alone() {
+        let d = tmpdir("recreated");
+        let lock = DirLock::acquire(&d).unwrap();
+        std::fs::remove_dir_all(&d).unwrap();
+        std::fs::create_dir_all(&d).unwrap();
+        std::fs::write(d.join(LOCK_FILE), "{\"pid\": 1}").unwrap();
+        drop(lock);
+        assert_eq!(std::fs::read_to_string(d.join(LOCK_FILE)).unwrap(), "{\"pid\": 1}");
+        let _ = std::fs::remove_dir_all(&d);
     }
 
     #[test]
