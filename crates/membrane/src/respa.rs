@@ -35,6 +35,23 @@ pub struct InnerSweep<'a> {
     pub first_key: u64,
 }
 
+impl InnerSweep<'_> {
+    /// The Shardlow sweep of inner step `j` with step `h` (noise counter `first_key + j`).
+    fn apply(&self, x: &[DVec3], v: &mut [DVec3], mass: &[f64], h: f64, j: u32) {
+        shardlow_sweep(
+            self.links,
+            x,
+            v,
+            mass,
+            self.viscosity,
+            self.kbt,
+            h,
+            self.seed,
+            self.first_key.wrapping_add(j as u64),
+        );
+    }
+}
+
 /// Runs `k` inner steps of size `h` (time) on the positions `x` (length), velocities `v`
 /// (length/time) and masses `mass`: each is v += ½h f/m; x += h v; f = fast(x); v += ½h f/m;
 /// then the Shardlow sweep of `sweep` (if any) with step h. `f` holds the fast forces at `x` on
@@ -68,17 +85,7 @@ pub fn inner_steps<E>(
             v[i] += f[i] * (0.5 * h / mass[i]);
         }
         if let Some(s) = sweep {
-            shardlow_sweep(
-                s.links,
-                x,
-                v,
-                mass,
-                s.viscosity,
-                s.kbt,
-                h,
-                s.seed,
-                s.first_key.wrapping_add(j as u64),
-            );
+            s.apply(x, v, mass, h, j);
         }
     }
     Ok(())
@@ -99,17 +106,7 @@ pub fn inner_sweeps(x: &mut [DVec3], v: &mut [DVec3], mass: &[f64], k: u32, h: f
             x[i] += v[i] * (0.5 * h);
         }
         if let Some(s) = sweep {
-            shardlow_sweep(
-                s.links,
-                x,
-                v,
-                mass,
-                s.viscosity,
-                s.kbt,
-                h,
-                s.seed,
-                s.first_key.wrapping_add(j as u64),
-            );
+            s.apply(x, v, mass, h, j);
         }
         for i in 0..n {
             x[i] += v[i] * (0.5 * h);
