@@ -117,7 +117,7 @@ pub fn recover(
     mut stop: impl FnMut() -> bool,
 ) -> Result<Recovery, RecoveryError> {
     let v = &opts.viscosity;
-    if !v.is_valid() || !(opts.drag.is_finite() && opts.drag >= 0.0) {
+    if !(v.is_valid() && opts.drag.is_finite() && opts.drag >= 0.0) {
         return Err(RecoveryError::Options(format!(
             "frictions must be finite and ≥ 0 (γ_T {}, γ_C {}, drag {})",
             v.gamma_t, v.gamma_c, opts.drag
@@ -208,7 +208,7 @@ pub fn extrapolate(coarse: &Recovery, fine: &Recovery) -> Option<Vec<RecoverySam
         .iter()
         .zip(&fine.samples)
         .map(|(c, f)| {
-            ((c.time - f.time).abs() <= 1e-12 * c.time.abs().max(1e-300)).then(|| RecoverySample {
+            ((c.time - f.time).abs() <= 1e-12 * c.time.abs().max(1e-300)).then_some(RecoverySample {
                 time: f.time,
                 axial_diameter: 2.0 * f.axial_diameter - c.axial_diameter,
                 transverse_diameter: 2.0 * f.transverse_diameter - c.transverse_diameter,

@@ -134,7 +134,7 @@ fn central_form_noise_acts_along_the_link_only() {
     let m = 40_000usize;
     let v0 = DVec3::new(0.5, 2.0, -1.5);
     let (p0, q0) = split(v0);
-    let a_p: f64 = (-40.0 * 2.0 * dt / mu as f64).exp();
+    let a_p: f64 = (-40.0 * 2.0 * dt / mu).exp();
     let v = run_links(m, &visc, kbt, dt, 2, v0);
     let mean_p = v.iter().map(|u| split(*u).0).sum::<f64>() / m as f64;
     let se_p = (kbt / mu * (1.0 - a_p * a_p) / m as f64).sqrt();
