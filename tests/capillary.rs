@@ -156,6 +156,8 @@ fn calibrated_default_runs_its_membrane_viscosity() {
     eprintln!("{visc}");
     assert!((f(&visc["pa_s_m"]) / 4.74e-7 - 1.0).abs() < 1e-12);
     assert_eq!(f(&visc["gamma_t"]), 0.0, "central form");
+    assert_eq!(visc["form"], "central");
+    assert_eq!(visc["substep_forces"], "outer");
     assert_eq!(visc["substeps"], 122);
     assert!(f(&visc["effective_friction_fraction"]) > 0.92);
     let (rest, para) = (stage(&r, "rest"), stage(&r, "parachute"));

@@ -16,7 +16,9 @@ pub(crate) fn membrane_viscosity_summary(
     eta_si: f64,
     shear_modulus_n_per_m: f64,
     visc: Option<&MembraneViscosity>,
+    form: serde_json::Value,
     substeps: u32,
+    substep_forces: serde_json::Value,
     dt: f64,
 ) -> serde_json::Value {
     let mu = 0.5 * VERTEX_MASS;
@@ -32,9 +34,11 @@ pub(crate) fn membrane_viscosity_summary(
         "gamma_t": visc.map(|v| v.gamma_t).unwrap_or(0.0),
         "gamma_c": visc.map(|v| v.gamma_c).unwrap_or(0.0),
         "kelvin_voigt_time_s": eta_si / shear_modulus_n_per_m,
+        "form": form,
         "substeps": substeps,
+        "substep_forces": substep_forces,
         "effective_friction_fraction": fraction,
-        "note": "2D membrane viscosity η_m (0: off, the paper's model); model units E τ/r²; Fedosov's link friction with γ_C = γ_T/3, η_m = √3 γ_T + √3 γ_C/4; η_m/μ0 is the Kelvin–Voigt time of the membrane alone (η_m is the simple-shear viscosity; without rotation, as in a stretch relaxation, Fedosov's form acts as 7/13 η_m and the central form as η_m); substeps: membrane sub-steps per fluid step (model.membrane_substeps); effective_friction_fraction: the link friction the scheme acts with on slow motion, over γ_T + γ_C (null without viscosity; docs/model.md §7b)",
+        "note": "2D membrane viscosity η_m (0: off, the paper's model); model units E τ/r²; link friction in the form given (\"fedosov\": γ_C = γ_T/3; \"central\": γ_T = 0), η_m = √3 γ_T + √3 γ_C/4; η_m/μ0 is the Kelvin–Voigt time of the membrane alone (η_m is the simple-shear viscosity; without rotation, as in a stretch relaxation, Fedosov's form acts as 7/13 η_m and the central form as η_m); substeps: membrane sub-steps per fluid step (model.membrane_substeps), substep_forces: where the membrane's elastic forces act with sub-steps (model.membrane_substep_forces); effective_friction_fraction: the link friction the scheme acts with on slow motion, over γ_T + γ_C (null without viscosity; docs/model.md §7b)",
     })
 }
 
@@ -94,7 +98,9 @@ pub(crate) fn common_blocks(
             plan.cell().membrane_viscosity_pa_s_m,
             sys.shear_modulus_n_per_m,
             visc.as_ref(),
+            serde_json::to_value(plan.cell().membrane_viscosity_form).unwrap_or_default(),
             *substeps,
+            serde_json::to_value(plan.model_keys().membrane_substep_forces).unwrap_or_default(),
             *dt,
         ),
         "mesh": mesh_info,
