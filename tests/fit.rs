@@ -251,6 +251,18 @@ fn bad_fit_files_are_refused_before_any_work() {
             "format_version = 1\n[[parameter]]\nname = \"reduced_volume\"\nlower = 0.9\nupper = 0.95\npoints = 2\n[[experiment]]\nname = \"mills2004\"\n",
             &["parameter[0].points", "3–21"],
         ),
+        (
+            "format_version = 1\n[[parameter]]\nname = \"membrane_viscosity\"\nlower = 4e-7\nupper = 8e-7\npoints = 3\n[[experiment]]\nname = \"ttf\"\nshipped = \"fischer_ttf\"\n",
+            &["experiment[0].shear_rate_per_s", "(missing)", "fischer_ttf"],
+        ),
+        (
+            "format_version = 1\n[[parameter]]\nname = \"membrane_viscosity\"\nlower = 4e-7\nupper = 8e-7\npoints = 3\n[[experiment]]\nname = \"x\"\nshipped = \"fischer2099\"\n",
+            &["experiment[0].shipped", "\"fischer2099\"", "fischer2015_inclination"],
+        ),
+        (
+            "format_version = 1\n[[parameter]]\nname = \"a\"\nlower = 15.0\nupper = 35.0\n[[experiment]]\nname = \"p\"\nscenario = \"x.toml\"\nshear_rate_per_s = 17.3\n",
+            &["experiment[0]", "shipped experiment"],
+        ),
     ];
     for (k, (text, wanted)) in cases.iter().enumerate() {
         let file = dir.path().join(format!("bad{k}.toml"));
@@ -333,4 +345,49 @@ fn shipped_hochmuth_experiment_calibrates_the_membrane_viscosity() {
         (tc - mean).abs() < sd,
         "t_c {tc} at the fitted η_m against {mean} ± {sd}"
     );
+}
+
+/// A shipped shear experiment through the whole fit, shortened to 0.6 strain units at N = 200 (the
+/// plumbing, not the physics: the targets are Fischer's, the runs far too short to match them).
+/// The membrane's rotation is defined in every run, so the TTF fit finishes; the inclination is
+/// defined only for a classified tank-treading cell, none of these short runs is one, and that
+/// fit stops after the runs with how many had a number. `calibrated.toml` carries a cell
+/// calibrated in shear to the capillary kind too.
+#[test]
+fn shipped_shear_experiments_run_through_the_fit() {
+    let dir = tempfile::tempdir().unwrap();
+    let short = "set = [\"cell.vertices=200\", \"shear.duration_strain=0.6\", \"shear.analysis_start_strain=0.2\"]";
+    let head = "format_version = 1\n[[parameter]]\nname = \"membrane_viscosity\"\nlower = 4e-7\nupper = 8e-7\npoints = 3\n";
+    let ttf = dir.path().join("ttf.toml");
+    std::fs::write(
+        &ttf,
+        format!("{head}[[experiment]]\nname = \"ttf-64\"\nshipped = \"fischer_ttf\"\nshear_rate_per_s = 64.0\n{short}\n"),
+    )
+    .unwrap();
+    let out = dir.path().join("ttf");
+    let r = hemodpd(&["fit", ttf.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet", "--jobs", "2"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let f = fit_json(&out);
+    let e = &f["experiments"][0];
+    assert_eq!(e["runs"], 3);
+    assert!((e["observables"][0]["target"].as_f64().unwrap() - 0.0287).abs() < 2e-4, "{e}");
+    assert_eq!(e["observables"][0]["runs_without_a_number"], 0);
+    let eta = f["parameters"][0]["value"].as_f64().unwrap();
+    assert!((4e-7..=8e-7).contains(&eta), "{eta}");
+    for kind in ["shear", "capillary"] {
+        let sets = hemodpd::fit::params_sets(&out.join("calibrated.toml"), kind).unwrap();
+        assert!(sets.contains(&format!("cell.membrane_viscosity_pa_s_m={eta:?}")), "{kind}: {sets:?}");
+    }
+    // the inclination: none of the three short runs defines it
+    let incl = dir.path().join("incl.toml");
+    std::fs::write(
+        &incl,
+        format!("{head}[[experiment]]\nname = \"incl\"\nshipped = \"fischer2015_inclination\"\nouter_viscosity_mpa_s = 23.9\nshear_rate_per_s = 64.0\n{short}\n"),
+    )
+    .unwrap();
+    let out = dir.path().join("incl");
+    let r = hemodpd(&["fit", incl.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet", "--jobs", "2"]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success(), "the inclination fit ran to the end");
+    assert!(err.contains("only 0 of 3 runs have a number at /motion/mean_inclination_deg"), "{err}");
 }

@@ -487,7 +487,7 @@ pub fn classify(s: &[FrameMotion], shear_rate: f64, th: &MotionThresholds) -> Re
     );
     out.flips = tu.len();
     out.tt_half_revolutions = tt.len();
-    out.tumbling_fraction = t_tu / (t_tu + t_tt);
+    out.tumbling_fraction = t_tu / (t_tu + t_tt) + 0.0; // + 0.0: never -0
     if !tu.is_empty() {
         out.tumbling_rate = Some(tu.iter().map(|e| e.body).sum::<f64>() / t_tu / 180.0);
     }

@@ -762,7 +762,8 @@ fn motion_json(a: &MotionAnalysis, rate_si: f64, time_s: f64) -> serde_json::Val
         "window_strain": a.strain,
         "flips": a.flips,
         "tank_treading_half_revolutions": a.tt_half_revolutions,
-        "tumbling_fraction": a.tumbling_fraction,
+        // a fraction of the labelled time: none when nothing was labelled (Undetermined)
+        "tumbling_fraction": (a.class != motion::MotionClass::Undetermined).then_some(a.tumbling_fraction),
         "tumbling_rate_flips_per_s": per_s(a.tumbling_rate),
         "tank_treading_frequency_hz": per_s(a.tank_treading_frequency),
         "tank_treading_frequency_over_shear_rate": per_s(a.tank_treading_frequency).map(|f| f / rate_si),
