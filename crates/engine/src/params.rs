@@ -123,6 +123,37 @@ pub const VISCOUS_FLUID_KBT_AT_TIMESTEP: Real = 0.9999;
 pub const VISCOUS_FLUID_VISCOSITY: Real = 1977.0;
 /// Standard error of [`VISCOUS_FLUID_VISCOSITY`].
 pub const VISCOUS_FLUID_VISCOSITY_SE: Real = 6.3;
+/// η(γ) of the dense fluid's family (n = 10, a = 100, s = 1/8, rc = 1: the dense and viscous
+/// fluids differ only in γ and step), (γ, η), measured by reverse Poiseuille flow at γΔt ≤ 0.123.
+/// η is not proportional to γ here: η/γ falls from 5.9 at γ = 8.5 to 4.8 at γ = 410 (η ∝
+/// γ^0.95), so a cytosol made by scaling γ by λ misses λ by 7–9 % (λ = 5: η_in/η_out = 4.645 ±
+/// 0.008). [`gamma_for_viscosity`] interpolates it. The points:
+/// - γ = 8.51 (Δt = 0.003): 50.6, one seed of a 4 × 4 × 16 box, 12 000 steps
+///   (`cytosol_viscosity_ratio_scan` in crates/engine/tests/viscosity.rs; the two halves 50.9
+///   and 50.3);
+/// - γ = 41: [`DENSE_FLUID_VISCOSITY`];
+/// - γ = 205 (Δt = 0.0006): 1059.5 ± 1.8, 2 seeds × 2 halves of 120 000 steps in 6 × 6 × 16;
+/// - γ = 410: [`VISCOUS_FLUID_VISCOSITY`].
+pub const DENSE_FAMILY_VISCOSITY_BY_GAMMA: [(Real, Real); 4] = [
+    (8.51, 50.6),
+    (41.0, DENSE_FLUID_VISCOSITY),
+    (205.0, 1059.5),
+    (VISCOUS_FLUID_GAMMA, VISCOUS_FLUID_VISCOSITY),
+];
+
+/// The γ at which a fluid of measured η(γ) `table` ((γ, η), γ ascending, at least two points)
+/// has the viscosity `eta`: log–log interpolation between neighbouring points, the end
+/// segments' power laws beyond the table.
+pub fn gamma_for_viscosity(table: &[(Real, Real)], eta: Real) -> Real {
+    assert!(table.len() >= 2, "a viscosity table needs two points");
+    let target = eta.ln();
+    let last = table.len() - 2;
+    let k = (0..last).find(|&i| table[i + 1].1.ln() >= target).unwrap_or(last);
+    let (g0, e0) = (table[k].0.ln(), table[k].1.ln());
+    let (g1, e1) = (table[k + 1].0.ln(), table[k + 1].1.ln());
+    (g0 + (target - e0) * (g1 - g0) / (e1 - e0)).exp()
+}
+
 /// Slip length of the viscous fluid at a wall of its own frozen particles with bounce-back, rc,
 /// measured like [`CAPILLARY_FLUID_WALL_SLIP`] (`viscous_fluid_wall_slip` in
 /// tests/capillary.rs: 3 seeds × 20 000 sampled steps, the flux 16.0–17.7 % above no-slip,
@@ -517,5 +548,31 @@ impl SimConfig {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The interpolation returns each measured point's γ for its η, lies between neighbours,
+    /// and follows the end segment's power law beyond the table.
+    #[test]
+    fn gamma_for_viscosity_interpolates_the_measured_table() {
+        let t = DENSE_FAMILY_VISCOSITY_BY_GAMMA;
+        for (g, eta) in t {
+            assert!((gamma_for_viscosity(&t, eta) / g - 1.0).abs() < 1e-12, "{g} {eta}");
+        }
+        // between 41 and 205: η ∝ γ^p with p = ln(1059.5/228.1)/ln 5
+        let p = (1059.5f64 / DENSE_FLUID_VISCOSITY).ln() / 5f64.ln();
+        let g = gamma_for_viscosity(&t, 3.0 * DENSE_FLUID_VISCOSITY);
+        assert!((g / 41.0 - 3f64.powf(1.0 / p)).abs() < 1e-12, "{g}");
+        // λ = 5 of the dense fluid lies between the 205 and 410 points
+        let g = gamma_for_viscosity(&t, 5.0 * DENSE_FLUID_VISCOSITY);
+        assert!(g > 205.0 && g < 410.0, "{g}");
+        // below the table: the first segment's law
+        let p0 = (DENSE_FLUID_VISCOSITY / 50.6f64).ln() / (41.0f64 / 8.51).ln();
+        let g = gamma_for_viscosity(&t, 25.3);
+        assert!((g / 8.51 - 0.5f64.powf(1.0 / p0)).abs() < 1e-12, "{g}");
     }
 }

@@ -53,6 +53,8 @@ pub struct FluidDecision {
     pub candidates: Vec<Candidate>,
     /// One sentence: why this fluid.
     pub reason: String,
+    /// The cytosol's viscosity ratio λ (its γ: [`FluidModel::inner_gamma`]).
+    pub viscosity_ratio: f64,
 }
 
 /// Estimated CPU seconds (2 threads) per physical ms of 1000 µm³ of `fluid` under `map` at the
@@ -106,6 +108,7 @@ pub fn choose_fluid(
                     outcome: Ok(c),
                 }],
                 reason: format!("named by model.fluid = \"{}\"", fluid.name),
+                viscosity_ratio: sys.viscosity_ratio,
                 fluid,
                 map,
             })
@@ -187,6 +190,7 @@ pub fn choose_fluid(
                 map,
                 candidates,
                 reason,
+                viscosity_ratio: sys.viscosity_ratio,
             })
         }
     }
@@ -233,6 +237,17 @@ pub fn explain_fluid(d: &FluidDecision) -> String {
         f.kbt_at_timestep,
         f.wall_slip,
         f.particle_steps_per_s
+    );
+    let _ = writeln!(
+        s,
+        "    cytosol: γ = {:.3} for λ = {:.4} ({})",
+        f.inner_gamma(d.viscosity_ratio),
+        d.viscosity_ratio,
+        if f.viscosity_by_gamma.is_empty() {
+            "λγ: this fluid's η is proportional to γ"
+        } else {
+            "read off the fluid's measured η(γ), which grows as γ^0.95, not λγ"
+        }
     );
     let _ = writeln!(s, "    re-measured by: {}", f.measured_by);
     let _ = writeln!(

@@ -25,6 +25,7 @@ pub use crate::fluid_choice::{
 };
 
 use hemodpd_engine::params::{
+    gamma_for_viscosity, DENSE_FAMILY_VISCOSITY_BY_GAMMA,
     self, PairParams, CAPILLARY_FLUID_DENSITY, CAPILLARY_FLUID_TIMESTEP, CAPILLARY_FLUID_VISCOSITY,
     CAPILLARY_FLUID_VISCOSITY_SE, CAPILLARY_FLUID_WALL_SLIP, DENSE_FLUID_DENSITY, DENSE_FLUID_KBT_AT_TIMESTEP,
     DENSE_FLUID_SOUND_SPEED, DENSE_FLUID_TIMESTEP, DENSE_FLUID_VISCOSITY, DENSE_FLUID_VISCOSITY_SE,
@@ -136,6 +137,10 @@ pub struct FluidModel {
     pub particle_steps_per_s: f64,
     /// The tests that re-measure the numbers above.
     pub measured_by: &'static str,
+    /// Measured η(γ) of the fluid's family at its density and conservative force, (γ, η):
+    /// the cytosol's γ is read off it ([`inner_gamma`](Self::inner_gamma)). Empty where η ∝ γ
+    /// holds (the capillary fluid: λ = 5 measured 4.995 ± 0.026).
+    pub viscosity_by_gamma: &'static [(f64, f64)],
 }
 
 impl FluidModel {
@@ -158,6 +163,7 @@ impl FluidModel {
             wall_slip: CAPILLARY_FLUID_WALL_SLIP,
             particle_steps_per_s: 1.3e7,
             measured_by: "viscosity_capillary_long (crates/engine/tests/viscosity.rs), capillary_fluid_timestep_scan (crates/engine/tests/capillary_fluid.rs), capillary_fluid_wall_slip (tests/capillary.rs)",
+            viscosity_by_gamma: &[],
         }
     }
 
@@ -180,6 +186,7 @@ impl FluidModel {
             // fluid_bench, 40,960 particles, 2 threads, with the s = ⅛ kernel (docs/performance.md)
             particle_steps_per_s: 3.1e6,
             measured_by: "viscosity_dense_long (crates/engine/tests/viscosity.rs), dense_fluid_timestep_scan and dense_fluid_sound_speed (crates/engine/tests/dense_fluid.rs), dense_fluid_wall_slip (tests/capillary.rs)",
+            viscosity_by_gamma: &DENSE_FAMILY_VISCOSITY_BY_GAMMA,
         }
     }
 
@@ -206,6 +213,7 @@ impl FluidModel {
             // the dense fluid's pair loop (the same kernel, density and cutoff)
             particle_steps_per_s: 3.1e6,
             measured_by: "viscosity_viscous_long (crates/engine/tests/viscosity.rs), viscous_fluid_timestep_scan and viscous_fluid_temperature_and_pressure (crates/engine/tests/dense_fluid.rs), viscous_fluid_wall_slip (tests/capillary.rs)",
+            viscosity_by_gamma: &DENSE_FAMILY_VISCOSITY_BY_GAMMA,
         }
     }
 
@@ -227,6 +235,7 @@ impl FluidModel {
             wall_slip: 0.0,
             particle_steps_per_s: 1.8e7,
             measured_by: "viscosity tests in crates/engine/tests/viscosity.rs",
+            viscosity_by_gamma: &[],
         }
     }
 
@@ -247,6 +256,17 @@ impl FluidModel {
         Self::table().iter().map(|f| f.name).collect()
     }
 
+    /// The inner fluid's (cytosol's) γ for the viscosity ratio λ: λγ where η ∝ γ, else the γ
+    /// at which the measured [`viscosity_by_gamma`](Self::viscosity_by_gamma) gives λ·η
+    /// (the dense family's η grows as γ^0.95, so λ = 5 needs 5.4 γ, λ = 0.21 0.19 γ).
+    pub fn inner_gamma(&self, lambda: f64) -> f64 {
+        if self.viscosity_by_gamma.len() < 2 || lambda == 1.0 {
+            lambda * self.pair.gamma
+        } else {
+            gamma_for_viscosity(self.viscosity_by_gamma, lambda * self.viscosity)
+        }
+    }
+
     /// Mass density n·m (model units).
     pub fn mass_density(&self) -> f64 {
         self.density * self.mass
@@ -255,7 +275,7 @@ impl FluidModel {
     /// The default time step of a cell in this fluid: the fluid's own step, shortened where a
     /// pair's friction would exceed the fluid's validated [`friction_step_limit`]
     /// (Self::friction_step_limit) on γΔt (per unit mass), or where the membrane is too stiff
-    /// for it. The inner fluid has γ × λ, and the membrane vertices (mass 1) feel γ_fsi
+    /// for it. The inner fluid has [`inner_gamma`](Self::inner_gamma), and the membrane vertices (mass 1) feel γ_fsi
     /// ([`fsi_friction`], × λ inside) from the fluid, which grows as the vertices thin out
     /// (small N or a fine resolution). The membrane's in-plane modulus μ0 in model units,
     /// μ0 r²/(f kBT), grows as the thermal factor f falls; in flow its links are stretched
@@ -266,7 +286,10 @@ impl FluidModel {
         let length_m = map.length_m;
         let vertex_density = sys.vertices as f64 / (sys.cell_area_m2 / (length_m * length_m));
         let gamma_fsi = fsi_friction(self.viscosity, self.density, vertex_density, self.pair.s, self.pair.rc);
-        let gamma_max = sys.viscosity_ratio.max(1.0) * self.pair.gamma.max(gamma_fsi);
+        let gamma_max = self
+            .inner_gamma(sys.viscosity_ratio)
+            .max(self.pair.gamma)
+            .max(sys.viscosity_ratio.max(1.0) * gamma_fsi);
         let mu0 = map.modulus_to_model(sys.shear_modulus_n_per_m);
         let membrane = MEMBRANE_STEP_LIMIT / (mu0 / self.mass).sqrt();
         self.timestep.min(self.friction_step_limit / gamma_max).min(membrane)
@@ -1057,6 +1080,27 @@ mod tests {
 
     fn rel(a: f64, b: f64) -> f64 {
         (a - b).abs() / b.abs()
+    }
+
+    /// The cytosol's γ: λγ for the capillary fluid (η ∝ γ measured to 0.5 % at λ = 5); for the
+    /// dense family the γ whose measured η is λ × the outer fluid's, which is not λγ (η ∝
+    /// γ^0.95): λ = 5 of the dense fluid lies between the table's 205 and 410, λ = 0.21 of the
+    /// viscous fluid between 41 and 205, and λ = 1 is the fluid's own γ.
+    #[test]
+    fn inner_gamma_reads_the_measured_viscosity() {
+        let cap = FluidModel::capillary();
+        assert_eq!(cap.inner_gamma(5.0), 600.0);
+        assert_eq!(cap.inner_gamma(0.5), 60.0);
+        for f in [FluidModel::dense(), FluidModel::viscous()] {
+            assert_eq!(f.inner_gamma(1.0), f.pair.gamma);
+        }
+        let g = FluidModel::dense().inner_gamma(5.0);
+        assert!(g > 205.0 && g < 410.0 && g > 1.05 * 205.0, "{g}");
+        let lambda = 6.0 / 28.9;
+        let g = FluidModel::viscous().inner_gamma(lambda);
+        assert!(g > 41.0 && g < 205.0 && g < 0.95 * lambda * 410.0, "{g}");
+        // the same η(γ) from either end: the viscous fluid at λ = 228.1/1977 is the dense fluid
+        assert!(rel(FluidModel::viscous().inner_gamma(228.1 / 1977.0), 41.0) < 1e-12);
     }
 
     /// The systems of the agreement test: 10 and 8 µm tubes, 0.2–5 mm/s, λ = 1 and 5,

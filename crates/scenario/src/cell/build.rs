@@ -106,8 +106,8 @@ pub(crate) fn cell_membrane_viscosity(cell: &CellSection, map: &UnitMapping) -> 
 }
 
 /// The force field of a cell in plasma (types [`OUTER`], [`WALL`], [`INNER`], [`MEMBRANE`];
-/// see the module docs of [`crate::cell`]): the inner fluid's γ is the outer's times
-/// `viscosity_ratio`, the membrane's friction with each side gives no slip for that side's
+/// see the module docs of [`crate::cell`]): the inner fluid's γ gives it `viscosity_ratio` ×
+/// the outer's measured η ([`FluidModel::inner_gamma`]), the membrane's friction with each side gives no slip for that side's
 /// viscosity. With `substeps` > 1 the membrane type is integrated by the cell, not the engine.
 pub(crate) fn cell_fluid_field(
     fluid: &FluidModel,
@@ -117,10 +117,9 @@ pub(crate) fn cell_fluid_field(
 ) -> Result<ForceField, RunError> {
     let p = fluid.pair;
     let (eta_o, eta_i) = (fluid.viscosity, fluid.viscosity * viscosity_ratio);
-    // inner γ: η ∝ γ for this fluid (the kinetic part is 0.2 % of η), so the ratio of the
-    // viscosities is the ratio of the γ's to that accuracy (docs/capillary.md)
+    // inner γ from the fluid's measured η(γ) (docs/units.md, "The cytosol")
     let inner = PairParams {
-        gamma: p.gamma * viscosity_ratio,
+        gamma: fluid.inner_gamma(viscosity_ratio),
         ..p
     };
     let fsi = |eta: f64| PairParams {
