@@ -131,7 +131,6 @@ fn format_value(v: f64) -> String {
     }
 }
 
-
 fn fail(file: &Path, key: &str, value: impl std::fmt::Display, allowed: &str) -> anyhow::Error {
     anyhow::anyhow!("{}: key `{key}` = {value} is not allowed: {allowed}", file.display())
 }

@@ -357,26 +357,43 @@ fn shipped_hochmuth_experiment_calibrates_the_membrane_viscosity() {
 fn shipped_shear_experiments_run_through_the_fit() {
     let dir = tempfile::tempdir().unwrap();
     let short = "set = [\"cell.vertices=200\", \"shear.duration_strain=0.6\", \"shear.analysis_start_strain=0.2\"]";
-    let head = "format_version = 1\n[[parameter]]\nname = \"membrane_viscosity\"\nlower = 4e-7\nupper = 8e-7\npoints = 3\n";
+    let head =
+        "format_version = 1\n[[parameter]]\nname = \"membrane_viscosity\"\nlower = 4e-7\nupper = 8e-7\npoints = 3\n";
     let ttf = dir.path().join("ttf.toml");
     std::fs::write(
         &ttf,
-        format!("{head}[[experiment]]\nname = \"ttf-64\"\nshipped = \"fischer_ttf\"\nshear_rate_per_s = 64.0\n{short}\n"),
+        format!(
+            "{head}[[experiment]]\nname = \"ttf-64\"\nshipped = \"fischer_ttf\"\nshear_rate_per_s = 64.0\n{short}\n"
+        ),
     )
     .unwrap();
     let out = dir.path().join("ttf");
-    let r = hemodpd(&["fit", ttf.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet", "--jobs", "2"]);
+    let r = hemodpd(&[
+        "fit",
+        ttf.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+        "--jobs",
+        "2",
+    ]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let f = fit_json(&out);
     let e = &f["experiments"][0];
     assert_eq!(e["runs"], 3);
-    assert!((e["observables"][0]["target"].as_f64().unwrap() - 0.0287).abs() < 2e-4, "{e}");
+    assert!(
+        (e["observables"][0]["target"].as_f64().unwrap() - 0.0287).abs() < 2e-4,
+        "{e}"
+    );
     assert_eq!(e["observables"][0]["runs_without_a_number"], 0);
     let eta = f["parameters"][0]["value"].as_f64().unwrap();
     assert!((4e-7..=8e-7).contains(&eta), "{eta}");
     for kind in ["shear", "capillary"] {
         let sets = hemodpd::fit::params_sets(&out.join("calibrated.toml"), kind).unwrap();
-        assert!(sets.contains(&format!("cell.membrane_viscosity_pa_s_m={eta:?}")), "{kind}: {sets:?}");
+        assert!(
+            sets.contains(&format!("cell.membrane_viscosity_pa_s_m={eta:?}")),
+            "{kind}: {sets:?}"
+        );
     }
     // the inclination: none of the three short runs defines it
     let incl = dir.path().join("incl.toml");
@@ -386,8 +403,19 @@ fn shipped_shear_experiments_run_through_the_fit() {
     )
     .unwrap();
     let out = dir.path().join("incl");
-    let r = hemodpd(&["fit", incl.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet", "--jobs", "2"]);
+    let r = hemodpd(&[
+        "fit",
+        incl.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--quiet",
+        "--jobs",
+        "2",
+    ]);
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(!r.status.success(), "the inclination fit ran to the end");
-    assert!(err.contains("only 0 of 3 runs have a number at /motion/mean_inclination_deg"), "{err}");
+    assert!(
+        err.contains("only 0 of 3 runs have a number at /motion/mean_inclination_deg"),
+        "{err}"
+    );
 }

@@ -41,7 +41,10 @@ impl Conditions {
     fn none(&self) -> Result<(), Refusal> {
         let given = [
             ("shear_rate_per_s", self.shear_rate_per_s.map(|v| v.to_string())),
-            ("outer_viscosity_mpa_s", self.outer_viscosity_mpa_s.map(|v| v.to_string())),
+            (
+                "outer_viscosity_mpa_s",
+                self.outer_viscosity_mpa_s.map(|v| v.to_string()),
+            ),
             ("side", self.side.clone()),
         ];
         match given.into_iter().find(|(_, v)| v.is_some()) {
@@ -145,7 +148,12 @@ fn csv_rows(text: &str) -> Vec<Vec<&str>> {
 /// The mean and sample SD of the values `(rate, value)` whose rate is within ×1.25 of `rate`;
 /// refused when fewer than 3 cells are that close (the rates that have 3 are listed).
 fn cells_near(data: &[(f64, f64)], rate: f64, what: &str) -> Result<(f64, f64), Refusal> {
-    let near = |r: f64| data.iter().filter(|(g, _)| (g / r).ln().abs() < 1.25f64.ln()).map(|p| p.1).collect::<Vec<_>>();
+    let near = |r: f64| {
+        data.iter()
+            .filter(|(g, _)| (g / r).ln().abs() < 1.25f64.ln())
+            .map(|p| p.1)
+            .collect::<Vec<_>>()
+    };
     let v = near(rate);
     if !(rate.is_finite() && rate > 0.0) || v.len() < 3 {
         let mut rates: Vec<f64> = data.iter().map(|p| p.0).collect();
@@ -161,7 +169,10 @@ fn cells_near(data: &[(f64, f64)], rate: f64, what: &str) -> Result<(f64, f64), 
         return Err(Refusal {
             key: "shear_rate_per_s",
             value: rate.to_string(),
-            allowed: format!("a rate with at least 3 of {what} within ×1.25 (the data start near {} 1/s)", have.join(", ")),
+            allowed: format!(
+                "a rate with at least 3 of {what} within ×1.25 (the data start near {} 1/s)",
+                have.join(", ")
+            ),
         });
     }
     let n = v.len() as f64;
@@ -193,10 +204,18 @@ fn shear_condition(eta_mpa_s: f64, stress_pa: f64) -> Vec<String> {
 /// class; a tumbling cell's is its small residual rotation).
 fn fischer_ttf(c: &Conditions) -> Result<Conditioned, Refusal> {
     if c.side.is_some() {
-        return Err(Refusal { key: "side", value: c.side.clone().unwrap_or_default(), allowed: "nothing (only fischer2013_threshold takes a side)".into() });
+        return Err(Refusal {
+            key: "side",
+            value: c.side.clone().unwrap_or_default(),
+            allowed: "nothing (only fischer2013_threshold takes a side)".into(),
+        });
     }
     if let Some(eta) = c.outer_viscosity_mpa_s.filter(|e| (e - 28.9).abs() > 1e-9) {
-        return Err(Refusal { key: "outer_viscosity_mpa_s", value: eta.to_string(), allowed: "28.9 (the only viscosity of Fischer's TTF data) or nothing".into() });
+        return Err(Refusal {
+            key: "outer_viscosity_mpa_s",
+            value: eta.to_string(),
+            allowed: "28.9 (the only viscosity of Fischer's TTF data) or nothing".into(),
+        });
     }
     let rate = required_rate(c)?;
     let data: Vec<(f64, f64)> = csv_rows(FISCHER_TTF_CSV)
@@ -206,7 +225,11 @@ fn fischer_ttf(c: &Conditions) -> Result<Conditioned, Refusal> {
     let (m, sd) = cells_near(&data, rate, "Fischer's cells")?;
     Ok((
         shear_condition(28.9, rate * 28.9e-3),
-        vec![ObservableSpec { pointer: "/membrane_rotation/over_shear_rate".into(), target: m, sigma: sd }],
+        vec![ObservableSpec {
+            pointer: "/membrane_rotation/over_shear_rate".into(),
+            target: m,
+            sigma: sd,
+        }],
     ))
 }
 
@@ -226,19 +249,31 @@ fn viscosity_of(c: &Conditions, allowed: &[f64]) -> Result<f64, Refusal> {
 /// Fischer 2015: the mean inclination of the tank-treading cell (absent for a tumbling one).
 fn fischer2015_inclination(c: &Conditions) -> Result<Conditioned, Refusal> {
     if c.side.is_some() {
-        return Err(Refusal { key: "side", value: c.side.clone().unwrap_or_default(), allowed: "nothing (only fischer2013_threshold takes a side)".into() });
+        return Err(Refusal {
+            key: "side",
+            value: c.side.clone().unwrap_or_default(),
+            allowed: "nothing (only fischer2013_threshold takes a side)".into(),
+        });
     }
     let eta = viscosity_of(c, &[10.7, 23.9, 55.9, 104.0])?;
     let rate = required_rate(c)?;
     let data: Vec<(f64, f64)> = csv_rows(FISCHER_INCLINATION_CSV)
         .iter()
-        .filter(|r| r.first().and_then(|v| v.parse::<f64>().ok()).is_some_and(|v| (v - eta).abs() < 1e-9))
+        .filter(|r| {
+            r.first()
+                .and_then(|v| v.parse::<f64>().ok())
+                .is_some_and(|v| (v - eta).abs() < 1e-9)
+        })
         .filter_map(|r| Some((r.get(2)?.parse().ok()?, r.get(3)?.parse().ok()?)))
         .collect();
     let (m, sd) = cells_near(&data, rate, &format!("Fischer's cells at {eta} mPa·s"))?;
     Ok((
         shear_condition(eta, rate * eta * 1e-3),
-        vec![ObservableSpec { pointer: "/motion/mean_inclination_deg".into(), target: m, sigma: sd }],
+        vec![ObservableSpec {
+            pointer: "/motion/mean_inclination_deg".into(),
+            target: m,
+            sigma: sd,
+        }],
     ))
 }
 
@@ -246,13 +281,21 @@ fn fischer2015_inclination(c: &Conditions) -> Result<Conditioned, Refusal> {
 /// stress the cell should tumble (fraction 1), at 1.25 × their highest tank-tread (fraction 0).
 fn fischer2013_threshold(c: &Conditions) -> Result<Conditioned, Refusal> {
     if c.shear_rate_per_s.is_some() {
-        return Err(Refusal { key: "shear_rate_per_s", value: c.shear_rate_per_s.unwrap_or_default().to_string(), allowed: "nothing: the stress follows from the threshold data and `side`".into() });
+        return Err(Refusal {
+            key: "shear_rate_per_s",
+            value: c.shear_rate_per_s.unwrap_or_default().to_string(),
+            allowed: "nothing: the stress follows from the threshold data and `side`".into(),
+        });
     }
     let eta = viscosity_of(c, &[10.7, 23.9, 104.0])?;
     let stresses: Vec<f64> = csv_rows(FISCHER_THRESHOLD_CSV)
         .iter()
         .filter(|r| r.first() == Some(&"Fischer2013"))
-        .filter(|r| r.get(1).and_then(|v| v.parse::<f64>().ok()).is_some_and(|v| (v - eta).abs() < 1e-9))
+        .filter(|r| {
+            r.get(1)
+                .and_then(|v| v.parse::<f64>().ok())
+                .is_some_and(|v| (v - eta).abs() < 1e-9)
+        })
         .filter_map(|r| r.get(2)?.parse().ok())
         .collect();
     let lo = stresses.iter().copied().fold(f64::INFINITY, f64::min);
@@ -270,7 +313,11 @@ fn fischer2013_threshold(c: &Conditions) -> Result<Conditioned, Refusal> {
     };
     Ok((
         shear_condition(eta, stress),
-        vec![ObservableSpec { pointer: "/motion/tumbling_fraction".into(), target, sigma: 0.25 }],
+        vec![ObservableSpec {
+            pointer: "/motion/tumbling_fraction".into(),
+            target,
+            sigma: 0.25,
+        }],
     ))
 }
 
@@ -327,7 +374,10 @@ mod tests {
     #[test]
     fn fischer_ttf_targets_the_cells_near_the_rate() {
         let (sets, obs) = fischer_ttf(&at(Some(17.3), None, None)).ok().unwrap();
-        assert_eq!(sets, ["fluid.outer_viscosity_pa_s=0.0289", "shear.shear_stress_pa=0.49997"]);
+        assert_eq!(
+            sets,
+            ["fluid.outer_viscosity_pa_s=0.0289", "shear.shear_stress_pa=0.49997"]
+        );
         assert_eq!(obs[0].pointer, "/membrane_rotation/over_shear_rate");
         assert!((obs[0].target - 0.0368).abs() < 1e-4, "{}", obs[0].target);
         assert!((0.0049..0.0052).contains(&obs[0].sigma), "{}", obs[0].sigma);
@@ -344,10 +394,14 @@ mod tests {
         assert!((obs[0].target - 13.666).abs() < 0.01, "{}", obs[0].target);
         assert_eq!(obs[0].pointer, "/motion/mean_inclination_deg");
         // 10.7 mPa·s: their thresholds 0.584–0.921 Pa
-        let (sets, obs) = fischer2013_threshold(&at(None, Some(10.7), Some("below"))).ok().unwrap();
+        let (sets, obs) = fischer2013_threshold(&at(None, Some(10.7), Some("below")))
+            .ok()
+            .unwrap();
         assert_eq!(sets[1], "shear.shear_stress_pa=0.467256");
         assert_eq!((obs[0].target, obs[0].sigma), (1.0, 0.25));
-        let (sets, obs) = fischer2013_threshold(&at(None, Some(10.7), Some("above"))).ok().unwrap();
+        let (sets, obs) = fischer2013_threshold(&at(None, Some(10.7), Some("above")))
+            .ok()
+            .unwrap();
         assert_eq!(sets[1], "shear.shear_stress_pa=1.15075");
         assert_eq!(obs[0].target, 0.0);
     }
@@ -356,19 +410,56 @@ mod tests {
     fn bad_conditions_name_the_key_and_what_is_allowed() {
         let cases: Vec<(Result<Conditioned, Refusal>, &str, &str)> = vec![
             (fischer_ttf(&at(None, None, None)), "shear_rate_per_s", "(missing)"),
-            (fischer_ttf(&at(Some(1000.0), None, None)), "shear_rate_per_s", "the data start near 7.610, 15.646"),
-            (fischer_ttf(&at(Some(17.3), Some(23.9), None)), "outer_viscosity_mpa_s", "28.9"),
-            (fischer2015_inclination(&at(Some(17.6), None, None)), "outer_viscosity_mpa_s", "10.7, 23.9, 55.9, 104"),
-            (fischer2015_inclination(&at(Some(17.6), Some(28.9), None)), "outer_viscosity_mpa_s", "23.9"),
-            (fischer2013_threshold(&at(None, Some(10.7), Some("middle"))), "side", "\"below\""),
-            (fischer2013_threshold(&at(None, Some(55.9), Some("below"))), "outer_viscosity_mpa_s", "10.7, 23.9, 104"),
-            (fischer2013_threshold(&at(Some(5.0), Some(10.7), Some("below"))), "shear_rate_per_s", "the stress follows"),
-            (at(Some(5.0), None, None).none().map(|_| (Vec::new(), Vec::new())), "shear_rate_per_s", "takes no conditions"),
+            (
+                fischer_ttf(&at(Some(1000.0), None, None)),
+                "shear_rate_per_s",
+                "the data start near 7.610, 15.646",
+            ),
+            (
+                fischer_ttf(&at(Some(17.3), Some(23.9), None)),
+                "outer_viscosity_mpa_s",
+                "28.9",
+            ),
+            (
+                fischer2015_inclination(&at(Some(17.6), None, None)),
+                "outer_viscosity_mpa_s",
+                "10.7, 23.9, 55.9, 104",
+            ),
+            (
+                fischer2015_inclination(&at(Some(17.6), Some(28.9), None)),
+                "outer_viscosity_mpa_s",
+                "23.9",
+            ),
+            (
+                fischer2013_threshold(&at(None, Some(10.7), Some("middle"))),
+                "side",
+                "\"below\"",
+            ),
+            (
+                fischer2013_threshold(&at(None, Some(55.9), Some("below"))),
+                "outer_viscosity_mpa_s",
+                "10.7, 23.9, 104",
+            ),
+            (
+                fischer2013_threshold(&at(Some(5.0), Some(10.7), Some("below"))),
+                "shear_rate_per_s",
+                "the stress follows",
+            ),
+            (
+                at(Some(5.0), None, None).none().map(|_| (Vec::new(), Vec::new())),
+                "shear_rate_per_s",
+                "takes no conditions",
+            ),
         ];
         for (k, (r, key, allowed)) in cases.into_iter().enumerate() {
             let Err(e) = r else { panic!("case {k} accepted") };
             assert_eq!(e.key, key, "case {k}");
-            assert!(e.allowed.contains(allowed) || e.value.contains(allowed), "case {k}: {} / {}", e.value, e.allowed);
+            assert!(
+                e.allowed.contains(allowed) || e.value.contains(allowed),
+                "case {k}: {} / {}",
+                e.value,
+                e.allowed
+            );
         }
     }
 }
