@@ -2,7 +2,7 @@
 # A sweep through a real Slurm: installs Debian's slurm-wlm and munge (apt-get), starts a
 # single-node cluster on this machine, emits a two-point sweep with `hemodpd sweep --emit-slurm`,
 # submits it with sbatch, waits for it, gathers the table with `hemodpd sweep-collect`, runs the
-# same grid locally and checks that the two tables agree point by point (every result identical;
+# same grid locally (on the core the one-CPU tasks leave free, while they run) and checks that the two tables agree point by point (every result identical;
 # wall times excluded). Then a capillary point that cannot meet its one-minute limit: Slurm's
 # early SIGTERM (#SBATCH --signal) makes it checkpoint and stop, sweep-collect lists it, its
 # resubmit command resumes it to the end, and its results equal an uninterrupted local run's.
@@ -24,7 +24,7 @@ ROOT=$(pwd)
 TIMEOUT=${SLURM_TEST_TIMEOUT:-120}
 SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
 t_start=$(date +%s)
-say() { echo "slurm_test: $*" >&2; }
+say() { echo "slurm_test [$(( $(date +%s) - t_start )) s]: $*" >&2; }
 fail() { say "FAIL: $*"; exit 1; }
 
 # 1. packages
@@ -49,8 +49,10 @@ fi
 WORK=$(mktemp -d /tmp/hemodpd-slurm.XXXXXX)
 chmod 755 "$WORK"
 started_pids=()
+local_pids=()
 cleanup() {
   local rc=$?
+  for pid in "${local_pids[@]}"; do kill "$pid" 2>/dev/null || true; done
   for pid in "${started_pids[@]}"; do
     $SUDO kill "$pid" 2>/dev/null || true
   done
@@ -163,6 +165,11 @@ grep -q -- "--array=0,1" "$WORK/collect0.err" || fail "sweep-collect did not pri
 JOB=$(sbatch --parsable "$SW/sweep.sbatch")
 JOB=${JOB%%;*}
 say "submitted job array $JOB"
+# the same grid locally, on the core the one-CPU tasks leave free (compared in step 6)
+LOCAL="$WORK/local-sweep"
+"$HEMODPD" sweep "$SCEN" "${GRID[@]}" --out "$LOCAL" --jobs 1 --threads-per-job 1 --quiet >/dev/null 2>"$WORK/local-sweep.err" &
+LOCAL_PID=$!
+local_pids+=("$LOCAL_PID")
 t0=$(date +%s)
 while [ -n "$(squeue -h -j "$JOB" 2>/dev/null)" ]; do
   [ $(( $(date +%s) - t0 )) -lt "$TIMEOUT" ] || { squeue -j "$JOB" >&2; fail "job $JOB still queued or running after $TIMEOUT s"; }
@@ -182,9 +189,8 @@ while [ -n "$(squeue -h -j "$JOB2" 2>/dev/null)" ]; do
 done
 grep -q "has finished" "$SW/slurm/${JOB2}_1.out" || fail "the resubmitted task did not skip its finished point: $(cat "$SW/slurm/${JOB2}_1.out")"
 
-# 6. the same grid locally, and the comparison
-LOCAL="$WORK/local-sweep"
-"$HEMODPD" sweep "$SCEN" "${GRID[@]}" --out "$LOCAL" --jobs 2 --threads-per-job 1 --quiet >/dev/null
+# 6. the comparison with the local run of the same grid
+wait "$LOCAL_PID" || fail "the local sweep failed: $(cat "$WORK/local-sweep.err")"
 python3 - "$SW/sweep.json" "$LOCAL/sweep.json" <<'PY'
 import json, sys
 a, b = (json.load(open(p)) for p in sys.argv[1:3])
@@ -222,6 +228,12 @@ grep -q '^#SBATCH --signal=B:TERM@30$' "$CW/sweep.sbatch" || fail "no --signal l
 JOB3=$(sbatch --parsable "$CW/sweep.sbatch")
 JOB3=${JOB3%%;*}
 say "submitted capillary job $JOB3 with a 1-minute limit"
+# the uninterrupted reference run, on the other core while the task and its resubmission run
+CLOCAL="$WORK/local-capillary"
+"$HEMODPD" sweep "$CAP" "${CGRID[@]}" --out "$CLOCAL" --jobs 1 --threads-per-job 1 --quiet >/dev/null 2>"$WORK/local-capillary.err" &
+CLOCAL_PID=$!
+local_pids+=("$CLOCAL_PID")
+local_pids+=("$LOCAL_PID")
 wait_job "$JOB3" $(( TIMEOUT + 300 ))
 OUT3="$CW/slurm/${JOB3}_0.out"
 grep -q "interrupted at step" "$OUT3" || fail "the capillary task was not stopped by its signal with a checkpoint: $(tail -n 5 "$OUT3")"
@@ -243,8 +255,7 @@ JOB4=${JOB4%%;*}
 wait_job "$JOB4" $(( TIMEOUT + 300 ))
 grep -q "resuming from its checkpoint" "$CW/slurm/${JOB4}_0.out" || fail "the resubmitted task did not resume: $(tail -n 5 "$CW/slurm/${JOB4}_0.out")"
 "$HEMODPD" sweep-collect "$CW" >/dev/null || { cat "$CW"/slurm/*.out >&2; fail "the resumed capillary point did not finish"; }
-CLOCAL="$WORK/local-capillary"
-"$HEMODPD" sweep "$CAP" "${CGRID[@]}" --out "$CLOCAL" --jobs 1 --threads-per-job 1 --quiet >/dev/null
+wait "$CLOCAL_PID" || fail "the uninterrupted local capillary run failed: $(cat "$WORK/local-capillary.err")"
 python3 - "$CW/sweep.json" "$CLOCAL/sweep.json" <<'PY'
 import json, sys
 a, b = (json.load(open(p)) for p in sys.argv[1:3])

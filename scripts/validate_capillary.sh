@@ -12,5 +12,5 @@ cd "$(dirname "$0")/.."
 fig_dir="${1:-$(mktemp -d)}"
 mkdir -p "$fig_dir"
 HEMODPD_FIGURES_DIR="$(cd "$fig_dir" && pwd)" \
-    cargo test --profile test --test capillary -- --ignored --nocapture --test-threads 1 capillary_validation
+    cargo test --profile test --test end_to_end -- --ignored --nocapture --test-threads 1 capillary_validation
 echo "figures in $fig_dir"

@@ -13,5 +13,5 @@ sweep_dir="${1:-${TMPDIR:-/tmp}/hemodpd-shear-validation}"
 fig_dir="${2:-$(mktemp -d)}"
 mkdir -p "$sweep_dir" "$fig_dir"
 HEMODPD_SHEAR_DIR="$(cd "$sweep_dir" && pwd)" HEMODPD_FIGURES_DIR="$(cd "$fig_dir" && pwd)" \
-    cargo test --profile test --test shear -- --ignored --nocapture shear_validation_fig4
+    cargo test --profile test --test end_to_end -- --ignored --nocapture shear_validation_fig4
 echo "sweeps in $sweep_dir, figures in $fig_dir"

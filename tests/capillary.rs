@@ -7,8 +7,7 @@ use hemodpd_scenario::{load, load_str, run, RunContext, RunError, Scenario};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
-mod common;
-use common::f;
+use crate::common::{self, f};
 
 fn scenario_path() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/capillary.toml")
@@ -81,7 +80,7 @@ fn cell_at_rest_keeps_its_shape_area_volume_and_temperature() {
     assert!(f(&q["fluid_mean_velocity_m_per_s"]).abs() < 2e-5);
 }
 
-/// The paper's protocol, shortened: rest, flow on at 1 mm/s for 20 ms, flow off for 10 ms.
+/// The paper's protocol, shortened: rest, flow on at 1 mm/s for 20 ms, flow off for 5 ms.
 /// - The controller holds the mean velocity within 3 % (its window means scatter by ~1 %).
 /// - The cell outruns the mean flow but not the centreline (2U): measured 1.38 U.
 /// - It elongates and its rear cups (parachute): at rest, length 2.7 µm and concavity 0.69 µm;
@@ -95,7 +94,7 @@ fn cell_at_rest_keeps_its_shape_area_volume_and_temperature() {
 fn parachute_forms_and_recovers() {
     let dir = tempfile::tempdir().unwrap();
     let s = capillary(&[
-        "stage=[{name = \"rest\", duration_s = 0.001}, {name = \"parachute\", duration_s = 0.02, mean_velocity_m_per_s = 1e-3}, {name = \"recovery\", duration_s = 0.01}]",
+        "stage=[{name = \"rest\", duration_s = 0.001}, {name = \"parachute\", duration_s = 0.02, mean_velocity_m_per_s = 1e-3}, {name = \"recovery\", duration_s = 0.005}]",
         "output.frame_every_s=0",
     ]);
     let r = run(&s, &RunContext::new(dir.path(), 0, false)).unwrap();
@@ -132,13 +131,15 @@ fn parachute_forms_and_recovers() {
 }
 
 /// The shipped default as it is (the calibrated set, docs/model.md §3b; "outer" sub-steps),
-/// shortened to 1 ms at rest and 15 ms at 1 mm/s:
+/// shortened to 1 ms at rest and 8 ms at 1 mm/s:
 /// - the set reaches the run: η_m = 4.74e-7 N·s/m in the central form, k = 122 sub-steps by
 ///   "auto", acting at ≥ 92 % of the friction (the analytic γ_eff of docs/model.md §7b);
 /// - the controller holds the mean velocity within 3 %, and the cell moves between the mean and
-///   the centreline velocity (1.05–2 U; measured 1.34–1.43 U over two seeds);
-/// - it elongates: its length grows by more than 30 % (measured 2.6 → 3.9–4.1 µm at 15 ms,
-///   slower than the paper's cell, 4.5 µm, as its membrane viscosity makes it);
+///   the centreline velocity (1.05–2 U; measured 1.28 U at 8 ms, 1.34–1.43 U at 15 ms over two
+///   seeds);
+/// - it elongates: its length grows by more than 20 % (measured 2.67 → 3.56 µm at 8 ms and
+///   2.6 → 3.9–4.1 µm at 15 ms, slower than the paper's cell, 4.5 µm at 15 ms, as its membrane
+///   viscosity makes it);
 /// - area and volume within 1 %, no fluid on the wrong side.
 #[test]
 fn calibrated_default_runs_its_membrane_viscosity() {
@@ -146,7 +147,7 @@ fn calibrated_default_runs_its_membrane_viscosity() {
     let s = load(
         &scenario_path(),
         &[
-            "stage=[{name = \"rest\", duration_s = 0.001}, {name = \"parachute\", duration_s = 0.015, mean_velocity_m_per_s = 1e-3}]".to_string(),
+            "stage=[{name = \"rest\", duration_s = 0.001}, {name = \"parachute\", duration_s = 0.008, mean_velocity_m_per_s = 1e-3}]".to_string(),
             "output.frame_every_s=0".to_string(),
         ],
     )
@@ -167,7 +168,7 @@ fn calibrated_default_runs_its_membrane_viscosity() {
     eprintln!("U {u:.4e}, cell {uc:.4e}; length {l0:.3} -> {l:.3} µm");
     assert!((u / 1e-3 - 1.0).abs() < 0.03, "mean velocity {u}");
     assert!(uc > 1.05 * u && uc < 2.0 * u, "cell velocity {uc} for {u}");
-    assert!(l > 1.3 * l0, "length {l0} -> {l}");
+    assert!(l > 1.2 * l0, "length {l0} -> {l}");
     assert!(f(&para["max_abs_area_deviation"]) < 0.01 && f(&para["max_abs_volume_deviation"]) < 0.01);
     assert_eq!(r["crossings"]["misplaced_total"], 0);
 }
@@ -302,23 +303,28 @@ fn narrow_tube_reaches_a_steady_cell_velocity() {
     );
 }
 
-/// Interrupted twice and resumed, the run ends bit-identical to the uninterrupted one: the
-/// same time series and the same final particles (the checkpoint holds the membrane's
-/// unwrapped positions, its counters, its resting mesh and the stage and controller state).
+/// Interrupted twice (on 2 threads) and resumed, the run ends bit-identical to one
+/// uninterrupted run on 1 thread: the same time series and the same final particles (the
+/// checkpoint holds the membrane's unwrapped positions, its counters, its resting mesh and the
+/// stage and controller state; pair noise and the Maxwell reflections are counter-based and
+/// bounces are applied in particle order, so the thread count does not enter).
 #[test]
-fn capillary_resumes_bit_identically() {
+fn capillary_resumes_bit_identically_on_any_thread_count() {
     let sets = [
         "stage=[{name = \"rest\", duration_s = 0.0005}, {name = \"flow\", duration_s = 0.002, mean_velocity_m_per_s = 1e-3}]",
         "output.frame_every_s=0.0004",
         "model.crossing_check_every_steps=50",
     ];
     let s = capillary(&sets);
+    let pool = |n: usize| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
     let whole = tempfile::tempdir().unwrap();
-    run(&s, &RunContext::new(whole.path(), 0, false)).unwrap();
+    pool(1)
+        .install(|| run(&s, &RunContext::new(whole.path(), 1, false)))
+        .unwrap();
     let parts = tempfile::tempdir().unwrap();
-    let mut ctx = RunContext::new(parts.path(), 0, false);
+    let mut ctx = RunContext::new(parts.path(), 2, false);
     // stopped inside the first stage, then inside the controlled stage
-    common::run_in_three_parts(&s, &mut ctx, [137, 301]);
+    pool(2).install(|| common::run_in_three_parts(&s, &mut ctx, [137, 301]));
     // the same series and particles, and the trajectory has each scheduled frame once
     common::assert_same_end(whole.path(), parts.path(), "cell.csv", "time series");
     // a finished run says so and is not touched
@@ -1295,24 +1301,6 @@ fn capillary_validation_resolution() {
     assert!((lb / la - 1.0).abs() < 0.05, "length N=500 {la} N=5000 {lb}");
 }
 
-/// The same scenario on 1 and on 2 threads gives the same time series, bit for bit (pair noise
-/// and the Maxwell reflections are counter-based; bounces are applied in particle order).
-#[test]
-fn capillary_is_independent_of_the_thread_count() {
-    let s = capillary(&[
-        "stage=[{name = \"rest\", duration_s = 0.0005}, {name = \"flow\", duration_s = 0.002, mean_velocity_m_per_s = 1e-3}]",
-        "output.frame_every_s=0",
-    ]);
-    let series = |threads: usize| {
-        let dir = tempfile::tempdir().unwrap();
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        pool.install(|| run(&s, &RunContext::new(dir.path(), threads, false)))
-            .unwrap();
-        std::fs::read_to_string(dir.path().join("cell.csv")).unwrap()
-    };
-    assert_eq!(series(1), series(2));
-}
-
 /// `--set` (and so `hemodpd sweep --vary`) reaches into the stages: `stage.1.mean_velocity_m_per_s`
 /// is the second stage's drive; a missing stage is a clear error.
 #[test]
@@ -1554,7 +1542,7 @@ fn stretch_and_release_with_and_without_membrane_viscosity() {
 /// Prints t_c of the Hochmuth fit and the performance shares (docs/validation.md); asserts
 /// that the recovery is slower than without sub-stepping's 2.3 ms by an order of magnitude,
 /// that no fluid crosses and that area and volume hold. About 15 minutes on 2 busy cores:
-/// `cargo test --test capillary stretch_and_release_substepped -- --ignored --nocapture` (the
+/// `cargo test --test end_to_end stretch_and_release_substepped -- --ignored --nocapture` (the
 /// test profile is optimised).
 #[test]
 #[ignore]
@@ -1611,7 +1599,7 @@ fn hochmuth_1979() -> Vec<(u32, f64, f64)> {
 /// The stretch-and-release validation behind docs/validation.md ("Stretch and release against
 /// Hochmuth 1979") and the capillary recovery with a membrane viscosity: prints the tables.
 /// About 10 minutes on 2 cores:
-/// `cargo test --release --test capillary membrane_viscosity_validation -- --ignored --nocapture`.
+/// `cargo test --release --test end_to_end membrane_viscosity_validation -- --ignored --nocapture`.
 /// Asserts only that the fits exist and that the viscosity slows the recovery.
 #[test]
 #[ignore]

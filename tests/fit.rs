@@ -145,7 +145,7 @@ fn toy_fit_recovers_the_known_parameter() {
 #[test]
 fn an_interrupted_fit_resumes() {
     let dir = tempfile::tempdir().unwrap();
-    let steps = 30_000;
+    let steps = 10_000;
     let file = toy_fit_file(dir.path(), 23.7, steps);
     let whole = dir.path().join("whole");
     let r = hemodpd(&[

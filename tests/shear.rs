@@ -6,8 +6,7 @@ use hemodpd_scenario::{load, run, RunContext, Scenario};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
-mod common;
-use common::f;
+use crate::common::{self, f};
 
 fn scenario_path() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/shear.toml")

@@ -209,7 +209,7 @@ fn fluid_sweep(out: &Path, jobs: &str) -> Command {
             "--set",
             "run.equilibration_steps=200",
             "--set",
-            "run.steps=30000",
+            "run.steps=10000",
             "--set",
             "output.trajectory_every_steps=1000",
             "--set",
@@ -311,7 +311,7 @@ fn interrupted_sweeps_resume_to_the_uninterrupted_table() {
             "{how}: point 1 finished before the interrupt reached it"
         );
         let ck = hemodpd_io::checkpoint::Checkpoint::load(dirs[1].join("checkpoint.h5")).unwrap();
-        assert!(ck.step > 0 && ck.step < 30_200, "checkpoint at step {}", ck.step);
+        assert!(ck.step > 0 && ck.step < 10_200, "checkpoint at step {}", ck.step);
         assert!(!dirs[2].join("summary.json").exists());
         let before = std::fs::read(dirs[0].join("summary.json")).unwrap();
         let before_mtime = std::fs::metadata(dirs[0].join("summary.json"))

@@ -136,13 +136,16 @@ fn fluid_stays_on_its_side_of_a_moving_cell() {
     moving_cell(MembraneReflection::Maxwell, 600, 10, DVec3::ZERO);
 }
 
-/// 10⁴ steps of a cell in a periodic box of fluid at rest and in uniform flow (the whole
-/// system moving at 0.6 rc per time unit): every inner and outer particle stays on its side
-/// (checked every 100 steps) and the total momentum is conserved to round-off.
+/// 5000 steps of a cell in a periodic box of fluid at rest and in uniform flow (the whole
+/// system moving at 0.63 rc per time unit: 6.3 rc in the 10 time units, across the 12 rc box's
+/// periodic boundary):
+/// every inner and outer particle stays on its side (checked every 100 steps) and the total
+/// momentum is conserved to round-off. The scenarios' end-to-end tests check the crossings of
+/// their longer runs as well.
 #[test]
-fn fluid_stays_on_its_side_for_ten_thousand_steps() {
+fn fluid_stays_on_its_side_for_five_thousand_steps() {
     for flow in [DVec3::ZERO, DVec3::new(0.6, 0.0, 0.2)] {
-        moving_cell(MembraneReflection::Maxwell, 10_000, 100, flow);
+        moving_cell(MembraneReflection::Maxwell, 5_000, 100, flow);
     }
 }
 
@@ -1147,9 +1150,10 @@ fn mu0_model(n: usize) -> f64 {
 /// The membrane viscosity acts as the Kelvin–Voigt membrane it stands for, at every N and step:
 /// a cell stretched in its plane and released (no fluid, no noise, so nothing else dissipates)
 /// relaxes exponentially with the time of its own affine stretching mode, friction/stiffness,
-/// both computed from the discrete model ([`kelvin_voigt_relaxation`]), at N = 200 and 500, at
-/// a plain step with (γ_T + γ_C)Δt/μ = 1 and at 10× that step sub-stepped by the scenarios'
-/// "auto" rule, and with both forms of the friction (η_m = 2 μ0, so η_m/μ0 = 2).
+/// both computed from the discrete model ([`kelvin_voigt_relaxation`]): at N = 200 at a plain
+/// step with (γ_T + γ_C)Δt/μ = 1 and at 10× that step sub-stepped by the scenarios' "auto"
+/// rule, at N = 500 at the sub-stepped step, and with both forms of the friction (η_m = 2 μ0,
+/// so η_m/μ0 = 2).
 ///
 /// Predicted: the affine mode is an upper bound (the network relaxes non-affinely as well), so
 /// the measured time is the same or a little shorter; the vertex inertia shifts it by
@@ -1177,7 +1181,9 @@ fn membrane_viscosity_relaxes_a_stretched_cell_at_its_mode_time() {
             let big = 10.0 * dt1;
             let auto = ((visc.gamma_t + visc.gamma_c) * big / 0.5).ceil() as u32;
             let cases: &[(f64, u32)] = match (form, n) {
-                ("fedosov", _) => &[(dt1, 1), (big, auto)],
+                ("fedosov", 200) => &[(dt1, 1), (big, auto)],
+                // the step's effect is checked at N = 200; N = 500 runs the sub-stepped step
+                ("fedosov", _) => &[(big, auto)],
                 // the central form's friction is 3.2× Fedosov's (a 3.2× smaller step): once
                 ("central", 200) => &[(big, auto)],
                 _ => &[],
@@ -1205,7 +1211,8 @@ fn membrane_viscosity_relaxes_a_stretched_cell_at_its_mode_time() {
                 );
             }
             match form {
-                "fedosov" => fedosov_ratio.push(times[0]),
+                // the sub-stepped step's time, which every case runs
+                "fedosov" => fedosov_ratio.push(*times.last().unwrap()),
                 _ if !times.is_empty() => {
                     // the rotation-free deformation: the central form's full η_m against
                     // Fedosov's (√3/2)γ_T + (√3/4)γ_C = 0.54 η_m on a flat lattice
