@@ -5,7 +5,8 @@
 # python/tests/ (which also runs examples/). The native module is built with the `pyext`
 # profile (Cargo.toml: optimised lightly, no debug info, quick to compile cold) into
 # target/pyext; a user's `pip install ./python` builds a release wheel instead. The sweep test
-# uses the CLI that `cargo test --workspace` builds (target/debug/hemodpd), so run this after it.
+# uses the CLI that the test build (`cargo nextest run` or `cargo test`) makes (target/debug/hemodpd),
+# so run this after it.
 #   HEMODPD_VENV   where the environment goes (default target/python-venv)
 #   PYTHON         the interpreter that makes it (default python3; 3.9 or newer)
 set -euo pipefail
