@@ -701,9 +701,10 @@ fn viscosity_cytosol_lambda5_dense_quick() {
 /// (γ = 600, Δt = 0.0008; 4 seeds × 2 halves of 150 000 steps) and the dense fluid's (γ read
 /// off its measured η(γ), 222.5, Δt = 0.00055; 2 seeds × 2 halves of 120 000 steps), each
 /// against its outer fluid's measured η. With γ = 205 (5 × 41) the dense cytosol measured
-/// 1059.5 ± 1.8, λ = 4.645 ± 0.008: the table's γ = 205 point.
-/// Prints λ_measured = η_in/η_out ± SE and asserts it within 3 SE + 1 % of 5 (≈ 15 min on 2
-/// cores in release).
+/// 1059.5 ± 1.8, λ = 4.645 ± 0.008: the table's γ = 205 point; with γ = 222.5 it measured
+/// 1154.0 ± 1.3, λ = 5.059 ± 0.006.
+/// Prints λ_measured = η_in/η_out ± SE and asserts it within 3 SE + 1 % of 5 (24.5 min on 2
+/// cores; the capillary fluid's part 9.5 min).
 #[test]
 #[ignore]
 fn viscosity_cytosol_lambda5_long() {
