@@ -2,8 +2,8 @@
 # A sweep through a real Slurm: installs Debian's slurm-wlm and munge (apt-get), starts a
 # single-node cluster on this machine, emits a two-point sweep with `hemodpd sweep --emit-slurm`,
 # submits it with sbatch, waits for it, gathers the table with `hemodpd sweep-collect`, runs the
-# same grid locally (on the core the one-CPU tasks leave free, while they run) and checks that the two tables agree point by point (every result identical;
-# wall times excluded). Then a capillary point that cannot meet its one-minute limit: Slurm's
+# same grid locally (on the core the one-CPU tasks leave free, while they run) and checks that
+# the two tables agree point by point (every result identical; wall times excluded). Then a capillary point that cannot meet its one-minute limit: Slurm's
 # early SIGTERM (#SBATCH --signal) makes it checkpoint and stop, sweep-collect lists it, its
 # resubmit command resumes it to the end, and its results equal an uninterrupted local run's.
 # Exits non-zero on any failure. CI runs it after the test suite.
