@@ -7,6 +7,17 @@
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
 
+/// `assert!` for the preconditions checked on every cell or particle: on in debug builds and in
+/// this crate's unit tests (which run these loops on small systems), off in optimised builds,
+/// including the integration tests' (they run the same loops for millions of steps).
+macro_rules! hot_assert {
+    ($($arg:tt)*) => {
+        if cfg!(any(debug_assertions, test)) {
+            assert!($($arg)*);
+        }
+    };
+}
+
 use crate::Real;
 
 /// For each 4-bit lane mask, the indices of its set lanes packed to the front (increasing).
@@ -353,7 +364,7 @@ pub(crate) const TAG_SHIFT: u32 = 28;
 /// candidates j > i0 + k count (the cell's own later particles).
 ///
 /// # Safety
-/// As [`scan_avx512`], and the caller guarantees (checked here only in debug builds, because
+/// As [`scan_avx512`], and the caller guarantees (checked here only in debug builds and unit tests, because
 /// this runs for every range of every cell; the caller checks them once per slab and cell) that
 /// the positions hold `e + 15` entries, `e + 16 < 2^TAG_SHIFT`, `tag < 16`, `ns` has an entry
 /// per query, and each query's hit region has room for `(e − a) + 16` more entries in `out`.
@@ -374,13 +385,13 @@ pub(crate) unsafe fn scan_cell_avx512(
         return;
     }
     let end = e + 15;
-    debug_assert!(
+    hot_assert!(
         px.len() >= end && py.len() >= end && pz.len() >= end,
         "positions not padded"
     );
-    debug_assert!(e + 16 < 1 << TAG_SHIFT && tag < 16, "index or tag too large");
-    debug_assert!(ns.len() >= qs.len(), "one hit count per query");
-    debug_assert!(
+    hot_assert!(e + 16 < 1 << TAG_SHIFT && tag < 16, "index or tag too large");
+    hot_assert!(ns.len() >= qs.len(), "one hit count per query");
+    hot_assert!(
         ns[..qs.len()].iter().all(|&n| n + (e - a) + 16 <= out.len()),
         "hit arrays too short"
     );
@@ -443,12 +454,12 @@ pub(crate) struct Geometry {
 impl Geometry {
     /// # Safety
     /// As [`scan_avx512`], and the caller guarantees that `rec` is shorter than `i32::MAX / 8`
-    /// (checked here only in debug builds).
+    /// (checked here only in debug builds and unit tests).
     #[inline(always)]
     pub(crate) unsafe fn new(rec: &[crate::cells::Record], q: [Real; 3], sh: &[[Real; 16]; 3], rc2: Real) -> Self {
         let np = rec.len();
         // Checked once per cell by the caller (this runs for every particle).
-        debug_assert!(np < (i32::MAX / 8) as usize, "too many particles");
+        hot_assert!(np < (i32::MAX / 8) as usize, "too many particles");
         let r = rec.as_ptr().cast::<Real>();
         // SAFETY: each table holds 16 entries.
         let load16 = |t: &[Real; 16]| unsafe { (_mm512_loadu_pd(t.as_ptr()), _mm512_loadu_pd(t.as_ptr().add(8))) };
@@ -704,7 +715,7 @@ unsafe fn partner_records(
 ///
 /// # Safety
 /// Only to be called from a function compiled with AVX-512 F, VL and DQ enabled on a CPU that
-/// has them. The caller guarantees (checked here only in debug builds, because this runs for
+/// has them. The caller guarantees (checked here only in debug builds and unit tests, because this runs for
 /// every particle) that `h.j` holds `hi + 7` entries, each of `out` `hi − lo + 7`, and `rec` is
 /// not empty and shorter than `i32::MAX`. Panics unless every untagged index is below
 /// `rec.len()`.
@@ -726,11 +737,11 @@ pub(crate) unsafe fn linear_forces_avx512(
         return;
     }
     // Checked once per cell by the caller (this runs for every particle).
-    debug_assert!(
+    hot_assert!(
         h.j.len() >= hi + 7 && out.iter().all(|o| o.len() >= hi - lo + 7),
         "force arrays too short"
     );
-    debug_assert!(!rec.is_empty() && rec.len() < i32::MAX as usize, "no records");
+    hot_assert!(!rec.is_empty() && rec.len() < i32::MAX as usize, "no records");
     // SAFETY: as this function's.
     let c = unsafe { LinearConsts::new(key, p) };
     let (vix, viy, viz) = (_mm512_set1_pd(vi.x), _mm512_set1_pd(vi.y), _mm512_set1_pd(vi.z));
@@ -776,14 +787,14 @@ pub(crate) const SLOT_SHIFT: u32 = 25;
 /// # Safety
 /// As [`scan_avx512`] (AVX-512 F enabled in the caller). The caller guarantees that every
 /// query's region ends 16 entries before the next region's start (`ns[k] + 16 ≤ (k + 1) ·
-/// stride`; the region bounds are checked only in debug builds), `hits` holds `nc · stride`
+/// stride`; the region bounds are checked only in debug builds and unit tests), `hits` holds `nc · stride`
 /// entries, `out` holds their total + 16, and the sorted indices are below 2^SLOT_SHIFT (not
 /// checked here: the slot would overwrite their high bits).
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 pub(crate) unsafe fn stream_cell_hits_avx512(hits: &[u32], ns: &[usize], stride: usize, out: &mut [u32]) -> usize {
     let nc = ns.len();
-    debug_assert!(
+    hot_assert!(
         nc <= 8 && hits.len() >= nc * stride,
         "cell too large, or hits too short"
     );
@@ -792,7 +803,7 @@ pub(crate) unsafe fn stream_cell_hits_avx512(hits: &[u32], ns: &[usize], stride:
     for (k, &end) in ns.iter().enumerate() {
         let slot = _mm512_set1_epi32(((k as u32) << SLOT_SHIFT) as i32);
         let mut a = k * stride;
-        debug_assert!(end + 16 <= (k + 1) * stride && len + (end - a) + 16 <= out.len());
+        hot_assert!(end + 16 <= (k + 1) * stride && len + (end - a) + 16 <= out.len());
         while a < end {
             // SAFETY: a + 15 < end + 16 ≤ this region's end (the caller's guarantee); the store
             // ends at most 15 entries past the stream's new end, inside `out`.
@@ -817,7 +828,7 @@ pub(crate) unsafe fn stream_cell_hits_avx512(hits: &[u32], ns: &[usize], stride:
 ///
 /// # Safety
 /// As [`linear_forces_avx512`], with `stream` and each of `out` holding `len + 7` entries and
-/// s0 + nc ≤ `rec.len()` (checked only in debug builds); panics unless every sorted index in the
+/// s0 + nc ≤ `rec.len()` (checked only in debug builds and unit tests); panics unless every sorted index in the
 /// stream is below `rec.len()`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
@@ -833,8 +844,8 @@ pub(crate) unsafe fn linear_forces_cell_avx512(
     if len == 0 {
         return;
     }
-    debug_assert!(stream.len() >= len + 7 && out.iter().all(|o| o.len() >= len + 7));
-    debug_assert!((1..=8).contains(&nc) && s0 + nc <= rec.len() && rec.len() < i32::MAX as usize);
+    hot_assert!(stream.len() >= len + 7 && out.iter().all(|o| o.len() >= len + 7));
+    hot_assert!((1..=8).contains(&nc) && s0 + nc <= rec.len() && rec.len() < i32::MAX as usize);
     // SAFETY: as this function's.
     let (c, [qx, qy, qz, vix, viy, viz, idi]) = unsafe {
         let own = _mm256_add_epi32(_mm256_set1_epi32(s0 as i32), _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7));

@@ -74,7 +74,7 @@ pub fn inner_steps<E>(
     mut fast: impl FnMut(&[DVec3], &mut [DVec3]) -> Result<(), E>,
 ) -> Result<(), E> {
     let n = x.len();
-    debug_assert!(v.len() == n && f.len() == n && mass.len() == n);
+    assert!(v.len() == n && f.len() == n && mass.len() == n);
     for j in 0..k {
         for i in 0..n {
             v[i] += f[i] * (0.5 * h / mass[i]);
@@ -100,7 +100,7 @@ pub fn inner_steps<E>(
 /// by each sweep; deterministic as [`inner_steps`].
 pub fn inner_sweeps(x: &mut [DVec3], v: &mut [DVec3], mass: &[f64], k: u32, h: f64, sweep: Option<InnerSweep<'_>>) {
     let n = x.len();
-    debug_assert!(v.len() == n && mass.len() == n);
+    assert!(v.len() == n && mass.len() == n);
     for j in 0..k {
         for i in 0..n {
             x[i] += v[i] * (0.5 * h);
