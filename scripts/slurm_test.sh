@@ -40,8 +40,10 @@ fi
 
 # 2. the binary
 if [ -z "${HEMODPD:-}" ]; then
+  # the whole workspace's feature set (--workspace), which is the test build's (Cargo.toml), so
+  # after `cargo nextest run` nothing compiles here
   say "building hemodpd (test profile)"
-  cargo build -q --profile test --bin hemodpd
+  cargo build -q --profile test --workspace --bins
   HEMODPD="$ROOT/target/debug/hemodpd"
 fi
 [ -x "$HEMODPD" ] || fail "no hemodpd binary at $HEMODPD"
