@@ -128,14 +128,16 @@ pub const VISCOUS_FLUID_VISCOSITY_SE: Real = 6.3;
 /// η is not proportional to γ here: η/γ falls from 5.9 at γ = 8.5 to 4.8 at γ = 410 (η ∝
 /// γ^0.95), so a cytosol made by scaling γ by λ misses λ by 7–9 % (λ = 5: η_in/η_out = 4.645 ±
 /// 0.008). [`gamma_for_viscosity`] interpolates it. The points:
-/// - γ = 8.51 (Δt = 0.003): 50.6, one seed of a 4 × 4 × 16 box, 12 000 steps
-///   (`cytosol_viscosity_ratio_scan` in crates/engine/tests/viscosity.rs; the two halves 50.9
-///   and 50.3);
+/// - γ = 4.25 and 8.51 (Δt = 0.003): 27.32 ± 0.27 and 52.30 ± 0.22, 2 seeds × 2 halves of
+///   40 000 steps in 6 × 6 × 16 (`dense_family_low_gamma_viscosity` in
+///   crates/engine/tests/viscosity.rs; an earlier single 4 × 4 × 16 run of 12 000 steps had
+///   read 50.6 at 8.51);
 /// - γ = 41: [`DENSE_FLUID_VISCOSITY`];
 /// - γ = 205 (Δt = 0.0006): 1059.5 ± 1.8, 2 seeds × 2 halves of 120 000 steps in 6 × 6 × 16;
 /// - γ = 410: [`VISCOUS_FLUID_VISCOSITY`].
-pub const DENSE_FAMILY_VISCOSITY_BY_GAMMA: [(Real, Real); 4] = [
-    (8.51, 50.6),
+pub const DENSE_FAMILY_VISCOSITY_BY_GAMMA: [(Real, Real); 5] = [
+    (4.25, 27.32),
+    (8.51, 52.30),
     (41.0, DENSE_FLUID_VISCOSITY),
     (205.0, 1059.5),
     (VISCOUS_FLUID_GAMMA, VISCOUS_FLUID_VISCOSITY),
@@ -571,8 +573,8 @@ mod tests {
         let g = gamma_for_viscosity(&t, 5.0 * DENSE_FLUID_VISCOSITY);
         assert!(g > 205.0 && g < 410.0, "{g}");
         // below the table: the first segment's law
-        let p0 = (DENSE_FLUID_VISCOSITY / 50.6f64).ln() / (41.0f64 / 8.51).ln();
-        let g = gamma_for_viscosity(&t, 25.3);
-        assert!((g / 8.51 - 0.5f64.powf(1.0 / p0)).abs() < 1e-12, "{g}");
+        let p0 = (52.30f64 / 27.32).ln() / (8.51f64 / 4.25).ln();
+        let g = gamma_for_viscosity(&t, 13.66);
+        assert!((g / 4.25 - 0.5f64.powf(1.0 / p0)).abs() < 1e-12, "{g}");
     }
 }
