@@ -125,21 +125,23 @@ pub const VISCOUS_FLUID_VISCOSITY: Real = 1977.0;
 pub const VISCOUS_FLUID_VISCOSITY_SE: Real = 6.3;
 /// η(γ) of the dense fluid's family (n = 10, a = 100, s = 1/8, rc = 1: the dense and viscous
 /// fluids differ only in γ and step), (γ, η), measured by reverse Poiseuille flow at γΔt ≤ 0.123.
-/// η is not proportional to γ here: η/γ falls from 5.9 at γ = 8.5 to 4.8 at γ = 410 (η ∝
-/// γ^0.95), so a cytosol made by scaling γ by λ misses λ by 7–9 % (λ = 5: η_in/η_out = 4.645 ±
+/// η is not proportional to γ here: η/γ falls from 6.4 at γ = 4.25 to 4.8 at γ = 410 (η ∝
+/// γ^0.94), so a cytosol made by scaling γ by λ misses λ by 7–9 % (λ = 5: η_in/η_out = 4.645 ±
 /// 0.008). [`gamma_for_viscosity`] interpolates it. The points:
 /// - γ = 4.25 and 8.51 (Δt = 0.003): 27.32 ± 0.27 and 52.30 ± 0.22, 2 seeds × 2 halves of
 ///   40 000 steps in 6 × 6 × 16 (`dense_family_low_gamma_viscosity` in
 ///   crates/engine/tests/viscosity.rs; an earlier single 4 × 4 × 16 run of 12 000 steps had
 ///   read 50.6 at 8.51);
 /// - γ = 41: [`DENSE_FLUID_VISCOSITY`];
-/// - γ = 205 (Δt = 0.0006): 1059.5 ± 1.8, 2 seeds × 2 halves of 120 000 steps in 6 × 6 × 16;
+/// - γ = 205 (Δt = 0.0006): 1059.5 ± 1.8, and γ = 222.5 (Δt = 0.00055): 1154.0 ± 1.3, each
+///   2 seeds × 2 halves of 120 000 steps in 6 × 6 × 16 (`viscosity_cytosol_lambda5_long`);
 /// - γ = 410: [`VISCOUS_FLUID_VISCOSITY`].
-pub const DENSE_FAMILY_VISCOSITY_BY_GAMMA: [(Real, Real); 5] = [
+pub const DENSE_FAMILY_VISCOSITY_BY_GAMMA: [(Real, Real); 6] = [
     (4.25, 27.32),
     (8.51, 52.30),
     (41.0, DENSE_FLUID_VISCOSITY),
     (205.0, 1059.5),
+    (222.5, 1154.0),
     (VISCOUS_FLUID_GAMMA, VISCOUS_FLUID_VISCOSITY),
 ];
 
@@ -569,9 +571,9 @@ mod tests {
         let p = (1059.5f64 / DENSE_FLUID_VISCOSITY).ln() / 5f64.ln();
         let g = gamma_for_viscosity(&t, 3.0 * DENSE_FLUID_VISCOSITY);
         assert!((g / 41.0 - 3f64.powf(1.0 / p)).abs() < 1e-12, "{g}");
-        // λ = 5 of the dense fluid lies between the 205 and 410 points
+        // λ = 5 of the dense fluid lies between the 205 and 222.5 points
         let g = gamma_for_viscosity(&t, 5.0 * DENSE_FLUID_VISCOSITY);
-        assert!(g > 205.0 && g < 410.0, "{g}");
+        assert!(g > 205.0 && g < 222.5, "{g}");
         // below the table: the first segment's law
         let p0 = (52.30f64 / 27.32).ln() / (8.51f64 / 4.25).ln();
         let g = gamma_for_viscosity(&t, 13.66);

@@ -246,7 +246,7 @@ pub fn explain_fluid(d: &FluidDecision) -> String {
         if f.viscosity_by_gamma.is_empty() {
             "λγ: this fluid's η is proportional to γ"
         } else {
-            "read off the fluid's measured η(γ), which grows as γ^0.95, not λγ"
+            "read off the fluid's measured η(γ), which grows as γ^0.94, not λγ"
         }
     );
     let _ = writeln!(s, "    re-measured by: {}", f.measured_by);
