@@ -823,23 +823,44 @@ fn capillary_validation_tomaiuolo() {
 /// 50 µm tube): 0.1 ms at rest, then 6 ms with `drive` (a stage key = value), D µm, `res` µm
 /// per rc, N vertices, the seed; no frames.
 fn narrow_tube_run(work: &Path, name: &str, d: f64, res: &str, n: usize, drive: &str, seed: u64) -> Value {
-    let st =
-        format!("stage=[{{name = \"rest\", duration_s = 0.0001}}, {{name = \"flow\", duration_s = 0.006, {drive}}}]");
-    go(
-        work,
-        name,
-        &[
-            &st,
-            &format!("tube.diameter_um={d}"),
-            "tube.length_um=50",
-            "plasma.viscosity_pa_s=1.0e-3",
-            &format!("model.length_um_per_rc={res}"),
-            &format!("cell.vertices={n}"),
-            &format!("seed={seed}"),
-            "output.frame_every_s=0",
-        ],
-    )
-    .0
+    tube_run(work, name, d, res, n, drive, seed, 0.006, &[])
+}
+
+/// [`narrow_tube_run`] with `flow_s` seconds of flow and `extra` overrides (the fluid, the
+/// starting orientation).
+#[allow(clippy::too_many_arguments)]
+fn tube_run(
+    work: &Path,
+    name: &str,
+    d: f64,
+    res: &str,
+    n: usize,
+    drive: &str,
+    seed: u64,
+    flow_s: f64,
+    extra: &[&str],
+) -> Value {
+    let st = format!(
+        "stage=[{{name = \"rest\", duration_s = 0.0001}}, {{name = \"flow\", duration_s = {flow_s}, {drive}}}]"
+    );
+    let (d, n, seed) = (
+        format!("tube.diameter_um={d}"),
+        format!("cell.vertices={n}"),
+        format!("seed={seed}"),
+    );
+    let res = format!("model.length_um_per_rc={res}");
+    let mut sets: Vec<&str> = vec![
+        &st,
+        &d,
+        "tube.length_um=50",
+        "plasma.viscosity_pa_s=1.0e-3",
+        &res,
+        &n,
+        &seed,
+        "output.frame_every_s=0",
+    ];
+    sets.extend_from_slice(extra);
+    go(work, name, &sets).0
 }
 
 /// y at x on the polyline `pts` (sorted by x), linear between its points; NaN outside.
@@ -908,20 +929,47 @@ impl NarrowRun {
 }
 
 /// Hochmuth, Marple & Sutera 1970's eight tubes (4.5–10.7 µm): the cell's length, the quantity
-/// they measured, at a mean flow of 3 mm/s (cells at 0.3–0.45 cm/s, inside the velocity range
+/// they measured, at a mean flow of 3 mm/s (cells at 0.3–0.5 cm/s, inside the velocity range
 /// of their cells in every tube), two seeds each, with `scenarios/capillary-tomaiuolo.toml`'s
 /// conditions (1.0 mPa·s, a 50 µm tube, the cell entering face-on and pressed into tubes
-/// narrower than it). 4.5 µm at 0.5 µm per rc with N = 2000 (the least tube at 1 µm per rc is
-/// 4.8 µm), the others at 1 µm per rc with N = 500. Prints the table of docs/validation.md
-/// ("Hochmuth 1970's tubes"): the model's length beside the mean and SD of their cells' lengths
-/// in the same tube within a factor of two of the model's velocity; writes
-/// `capillary_hochmuth_length.png` into `$HEMODPD_FIGURES_DIR` when set. ≈ 20 minutes on 2
-/// cores. Asserts what the docs state: the cell is longer in the narrowest tube than in the
-/// widest, and from 6.2 µm up fewer than 1 % of the particles a check tests were on the wrong
-/// side; the leak at 4.5 µm is printed (a known defect).
+/// narrower than it) and the capillary fluid. 4.5 µm at 0.5 µm per rc with N = 2000 (the least
+/// tube at 1 µm per rc is 4.8 µm), the others at 1 µm per rc with N = 500. In the two tubes
+/// wider than the cell (9.7 and 10.7 µm) it also enters edge-on, and the flow lasts 20 ms
+/// there, 6 ms elsewhere: an unpressed cell turns and lengthens for 10–20 ms (face-on 5.1 µm
+/// at 6 ms, 6.7 at 20 ms in the 9.7 µm tube), a pressed one settles within 6 ms. Prints the
+/// table of docs/validation.md ("Hochmuth 1970's tubes"): the model's length beside the mean
+/// and SD of their cells' lengths in the same tube within a factor of two of the model's
+/// velocity; writes `capillary_hochmuth_length.png` into `$HEMODPD_FIGURES_DIR` when set.
+/// ≈ 40 minutes on 2 cores, 15 of them the 4.5 µm tube. Asserts what the docs state: the cell
+/// is longer in the narrowest tube than in the widest, and from 6.2 µm up fewer than 1 % of
+/// the particles a check tests were on the wrong side; the leak at 4.5 µm is printed (a known
+/// defect).
 #[test]
 #[ignore]
 fn capillary_validation_hochmuth() {
+    hochmuth_tubes(
+        "capillary",
+        &[4.5, 6.2, 6.7, 7.6, 8.0, 8.5, 9.7, 10.7],
+        "capillary_hochmuth_length.png",
+    );
+}
+
+/// [`capillary_validation_hochmuth`] with the dense fluid (κ/kBT exact) in the seven tubes
+/// from 6.2 µm up (the 4.5 µm tube needs 0.5 µm per rc, 8 × the particles of the dense fluid's
+/// 1 µm per rc: not run). Writes `capillary_hochmuth_length_dense.png`. ≈ 60 minutes on 2
+/// cores.
+#[test]
+#[ignore]
+fn capillary_validation_hochmuth_dense() {
+    hochmuth_tubes(
+        "dense",
+        &[6.2, 6.7, 7.6, 8.0, 8.5, 9.7, 10.7],
+        "capillary_hochmuth_length_dense.png",
+    );
+}
+
+/// Hochmuth 1970's tubes `diameters` with `fluid`: see [`capillary_validation_hochmuth`].
+fn hochmuth_tubes(fluid: &str, diameters: &[f64], figure: &str) {
     use hemodpd_io::plot::{line_chart, Series};
     let (figs, work) = validation_setup();
     let work = work.path();
@@ -931,34 +979,50 @@ fn capillary_validation_hochmuth() {
         .map(|r| (r.1, r.2, r.3))
         .collect();
     let mean_velocity_mm_s = 3.0;
+    let fluid_set = format!("model.fluid=\"{fluid}\"");
     let mut runs = Vec::new();
+    // the starting orientation of each pair of runs (two seeds)
+    let mut starts = Vec::new();
     // (tube, seed, misplaced particles over all checks, checks, particles tested per check)
     let mut leaks = Vec::new();
-    for d in [4.5, 6.2, 6.7, 7.6, 8.0, 8.5, 9.7, 10.7] {
+    for &d in diameters {
         let (res, n) = if d < 4.8 { ("0.5", 2000) } else { ("1.0", 500) };
-        for seed in [1u64, 2] {
-            let t = std::time::Instant::now();
-            let drive = format!("mean_velocity_m_per_s = {}", mean_velocity_mm_s * 1e-3);
-            let r = narrow_tube_run(work, &format!("d{d}_s{seed}"), d, res, n, &drive, seed);
-            let c = &r["crossings"];
-            leaks.push((
-                d,
-                seed,
-                f(&c["misplaced_total"]),
-                f(&c["checks"]),
-                f(&c["checked_last"]),
-            ));
-            runs.push(NarrowRun::new(d, mean_velocity_mm_s, &r, t.elapsed().as_secs_f64()));
+        // the tubes the resting cell (7.8 µm) enters without being pressed
+        let wide = d > 9.0;
+        let (flow_s, orientations): (f64, &[&str]) = if wide {
+            (0.02, &["face-on", "edge-on"])
+        } else {
+            (0.006, &["face-on"])
+        };
+        for &orientation in orientations {
+            let orientation_set = format!("tube.cell_orientation=\"{orientation}\"");
+            for seed in [1u64, 2] {
+                let t = std::time::Instant::now();
+                let drive = format!("mean_velocity_m_per_s = {}", mean_velocity_mm_s * 1e-3);
+                let name = format!("d{d}_{orientation}_s{seed}");
+                let extra = [fluid_set.as_str(), orientation_set.as_str()];
+                let r = tube_run(work, &name, d, res, n, &drive, seed, flow_s, &extra);
+                let c = &r["crossings"];
+                leaks.push((
+                    d,
+                    seed,
+                    f(&c["misplaced_total"]),
+                    f(&c["checks"]),
+                    f(&c["checked_last"]),
+                ));
+                runs.push(NarrowRun::new(d, mean_velocity_mm_s, &r, t.elapsed().as_secs_f64()));
+            }
+            starts.push(orientation);
         }
     }
-    eprintln!("\nfluid on the wrong side of the membrane (all checks):");
+    eprintln!("\n{fluid} fluid; fluid on the wrong side of the membrane (all checks):");
     for (d, seed, m, checks, tested) in &leaks {
         eprintln!("  D = {d} µm, seed {seed}: {m} particles over {checks} checks of ≈ {tested} particles");
     }
     let rows: Vec<_> = runs.chunks(2).map(NarrowRun::mean_of_seeds).collect();
-    eprintln!("\n| D (µm) | cell velocity (cm/s) | length (µm) | length, seed 1 − seed 2 (µm) | DI (side view) | shape (seeds 1, 2) | Hochmuth 1970: cells within ×2 of the velocity | their length (µm), mean ± SD | model − experiment | f | run (s, each seed) |");
-    eprintln!("|---|---|---|---|---|---|---|---|---|---|---|");
-    for (d, _, v, _, len, _, di_side, fth, secs, shapes, dl) in &rows {
+    eprintln!("\n| D (µm) | start | flow (ms) | cell velocity (cm/s) | length (µm) | length, seed 1 − seed 2 (µm) | DI (side view) | shape (seeds 1, 2) | Hochmuth 1970: cells within ×2 of the velocity | their length (µm), mean ± SD | model − experiment | f | run (s, each seed) |");
+    eprintln!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for ((d, _, v, _, len, _, di_side, fth, secs, shapes, dl), start) in rows.iter().zip(&starts) {
         let near: Vec<f64> = length_ref
             .iter()
             .filter(|r| (r.0 - d).abs() < 0.01 && r.1 >= 0.5 * v && r.1 <= 2.0 * v)
@@ -969,8 +1033,9 @@ fn capillary_validation_hochmuth() {
         } else {
             (f64::NAN, f64::NAN)
         };
+        let flow_ms = if *d > 9.0 { 20 } else { 6 };
         eprintln!(
-            "| {d} | {v:.3} | {len:.2} | {dl:.2} | {di_side:.2} | {shapes} | {} | {m:.2} ± {sd:.2} | {:+.0} % | {fth:.1} | {secs:.0} |",
+            "| {d} | {start} | {flow_ms} | {v:.3} | {len:.2} | {dl:.2} | {di_side:.2} | {shapes} | {} | {m:.2} ± {sd:.2} | {:+.0} % | {fth:.1} | {secs:.0} |",
             near.len(),
             100.0 * (len / m - 1.0)
         );
@@ -978,8 +1043,10 @@ fn capillary_validation_hochmuth() {
     let (first, last) = (&rows[0], &rows[rows.len() - 1]);
     assert!(
         first.4 > last.4,
-        "length at 4.5 µm {} not above 10.7 µm {}",
+        "length at {} µm {} not above {} µm {}",
+        first.0,
         first.4,
+        last.0,
         last.4
     );
     // From 6.2 µm up no fluid may cross. The 4.5 µm tube at this speed leaks (a known defect,
@@ -989,13 +1056,21 @@ fn capillary_validation_hochmuth() {
         assert!(*m <= 0.01 * tested, "D = {d} µm, seed {seed}: {m} particles crossed");
     }
     if let Some(dir) = &figs {
+        let points = |start: &str| -> Vec<(f64, f64)> {
+            runs.chunks(2)
+                .zip(&starts)
+                .filter(|(_, s)| **s == start)
+                .flat_map(|(pair, _)| pair.iter().map(|r| (r.d, r.length)))
+                .collect()
+        };
         line_chart(
-            dir.join("capillary_hochmuth_length.png"),
-            "Cell length against tube diameter (model: mean flow 3 mm/s)",
+            dir.join(figure),
+            &format!("Cell length against tube diameter (model: {fluid} fluid, mean flow 3 mm/s)"),
             "tube diameter (µm)",
             "axial length (µm)",
             &[
-                Series::points("this model (each seed)", runs.iter().map(|r| (r.d, r.length)).collect()),
+                Series::points("this model, face-on start (each seed)", points("face-on")),
+                Series::points("this model, edge-on start (each seed)", points("edge-on")),
                 Series::points(
                     "Hochmuth 1970 (every cell, 0.03–1.9 cm/s)",
                     length_ref.iter().map(|r| (r.0, r.2)).collect(),
