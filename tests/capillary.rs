@@ -940,7 +940,8 @@ impl NarrowRun {
 /// table of docs/validation.md ("Hochmuth 1970's tubes"): the model's length beside the mean
 /// and SD of their cells' lengths in the same tube within a factor of two of the model's
 /// velocity; writes `capillary_hochmuth_length.png` into `$HEMODPD_FIGURES_DIR` when set.
-/// ≈ 40 minutes on 2 cores, 15 of them the 4.5 µm tube. Asserts what the docs state: the cell
+/// ≈ 30 minutes on 2 cores (1744 s measured), 7 of them the 4.5 µm tube and 16 the 20 ms runs
+/// in the two wide tubes. Asserts what the docs state: the cell
 /// is longer in the narrowest tube than in the widest, and from 6.2 µm up fewer than 1 % of
 /// the particles a check tests were on the wrong side; the leak at 4.5 µm is printed (a known
 /// defect).
@@ -956,8 +957,10 @@ fn capillary_validation_hochmuth() {
 
 /// [`capillary_validation_hochmuth`] with the dense fluid (κ/kBT exact) in the seven tubes
 /// from 6.2 µm up (the 4.5 µm tube needs 0.5 µm per rc, 8 × the particles of the dense fluid's
-/// 1 µm per rc: not run). Writes `capillary_hochmuth_length_dense.png`. ≈ 60 minutes on 2
-/// cores.
+/// 1 µm per rc: not run). Writes `capillary_hochmuth_length_dense.png`. About 1.5–2 hours on 2
+/// cores, most of it the eight 20 ms runs in the wide tubes (7–13 min each: 669 and 757 s for
+/// 9.7 µm face-on and edge-on, seed 1, on a slower machine, 432 and 422 s at 10.7 µm on a
+/// faster one); the narrower tubes take 1–2 min a run.
 #[test]
 #[ignore]
 fn capillary_validation_hochmuth_dense() {
@@ -1068,13 +1071,14 @@ fn hochmuth_tubes(fluid: &str, diameters: &[f64], figure: &str) {
             &format!("Cell length against tube diameter (model: {fluid} fluid, mean flow 3 mm/s)"),
             "tube diameter (µm)",
             "axial length (µm)",
+            // the experiment first, so that the model's points are drawn over it
             &[
-                Series::points("this model, face-on start (each seed)", points("face-on")),
-                Series::points("this model, edge-on start (each seed)", points("edge-on")),
                 Series::points(
                     "Hochmuth 1970 (every cell, 0.03–1.9 cm/s)",
                     length_ref.iter().map(|r| (r.0, r.2)).collect(),
                 ),
+                Series::points("this model, face-on start (each seed)", points("face-on")),
+                Series::points("this model, edge-on start (each seed)", points("edge-on")),
             ],
         )
         .unwrap();
