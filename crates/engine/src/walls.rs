@@ -1121,6 +1121,53 @@ mod tests {
         }
     }
 
+    /// The time step of the reflection tests.
+    const REFLECT_DT: Real = 0.01;
+
+    /// The standard fluid's walled force field.
+    fn groot_warren_wall_field() -> ForceField {
+        wall_field(PairParams::groot_warren()).unwrap()
+    }
+
+    /// Walls of `shape` with `reflection`, default settings otherwise.
+    fn walls_reflecting(shape: WallShape, reflection: Reflection) -> Walls {
+        Walls::new(
+            shape,
+            WallConfig {
+                reflection,
+                ..WallConfig::default()
+            },
+        )
+        .unwrap()
+    }
+
+    /// One fluid particle at `x` with velocity `v` (after the drift of step `step`, Δt =
+    /// [`REFLECT_DT`]) through `walls`' reflection in a 10 × 10 × 9 box: its position and
+    /// velocity afterwards.
+    fn reflect_one(
+        walls: &mut Walls,
+        field: &ForceField,
+        x: DVec3,
+        v: DVec3,
+        step: u64,
+    ) -> Result<(DVec3, DVec3), EngineError> {
+        let domain = PeriodicBox::new(DVec3::new(10.0, 10.0, 9.0)).unwrap();
+        let (mut pos, mut vel, mut force) = (vec![x], vec![v], vec![DVec3::ZERO]);
+        let mut s = StateMut {
+            pos: &mut pos,
+            vel: &mut vel,
+            force: &mut force,
+            ptype: &[FLUID_TYPE],
+            id: &[0],
+            domain: &domain,
+            field,
+            dt: REFLECT_DT,
+            step,
+        };
+        walls.after_position_update(&mut s)?;
+        Ok((pos[0], vel[0]))
+    }
+
     #[test]
     fn signed_distances() {
         let c = WallShape::Cylinder {
@@ -1175,9 +1222,8 @@ mod tests {
     /// frame the path is reversed); specular reflection continues from the same crossing point.
     #[test]
     fn reflection_goes_back_from_the_crossing_point() {
-        let domain = PeriodicBox::new(DVec3::new(10.0, 10.0, 9.0)).unwrap();
-        let field = wall_field(PairParams::groot_warren()).unwrap();
-        let dt = 0.01;
+        let field = groot_warren_wall_field();
+        let dt = REFLECT_DT;
         let cyl = WallShape::Cylinder {
             axis: 2,
             centre: [5.0, 5.0],
@@ -1210,31 +1256,12 @@ mod tests {
             ),
         ];
         for (shape, refl, x0, v) in cases {
-            let mut walls = Walls::new(
-                shape,
-                WallConfig {
-                    reflection: refl,
-                    ..WallConfig::default()
-                },
-            )
-            .unwrap();
-            let (mut pos, mut vel, mut force) = (vec![x0 + v * dt], vec![v], vec![DVec3::ZERO]);
+            let mut walls = walls_reflecting(shape, refl);
             assert!(
-                shape.signed_distance(pos[0]) > 0.0,
+                shape.signed_distance(x0 + v * dt) > 0.0,
                 "the test particle must end in the wall"
             );
-            let mut s = StateMut {
-                pos: &mut pos,
-                vel: &mut vel,
-                force: &mut force,
-                ptype: &[FLUID_TYPE],
-                id: &[0],
-                domain: &domain,
-                field: &field,
-                dt,
-                step: 0,
-            };
-            walls.after_position_update(&mut s).unwrap();
+            let (pos, vel) = reflect_one(&mut walls, &field, x0 + v * dt, v, 0).unwrap();
             let frac = shape.crossing_fraction(x0, v * dt);
             let xc = x0 + v * (frac * dt);
             let u = shape.wall_velocity(xc);
@@ -1245,21 +1272,13 @@ mod tests {
                     v - n * (2.0 * (v - u).dot(n))
                 }
             };
-            assert!(
-                (vel[0] - expect_v).length() < 1e-12,
-                "{refl:?}: v {} vs {expect_v}",
-                vel[0]
-            );
+            assert!((vel - expect_v).length() < 1e-12, "{refl:?}: v {} vs {expect_v}", vel);
             let expect_x = xc + expect_v * ((1.0 - frac) * dt);
-            assert!(
-                (pos[0] - expect_x).length() < 1e-12,
-                "{refl:?}: x {} vs {expect_x}",
-                pos[0]
-            );
-            assert!(shape.signed_distance(pos[0]) < 0.0);
+            assert!((pos - expect_x).length() < 1e-12, "{refl:?}: x {} vs {expect_x}", pos);
+            assert!(shape.signed_distance(pos) < 0.0);
             if refl == Reflection::BounceBack && u == DVec3::ZERO {
                 // back along the incoming path: x0 + (2s − 1)Δt·v
-                assert!((pos[0] - (x0 + v * ((2.0 * frac - 1.0) * dt))).length() < 1e-12);
+                assert!((pos - (x0 + v * ((2.0 * frac - 1.0) * dt))).length() < 1e-12);
             }
             assert_eq!(walls.reflections(), 1);
         }
@@ -1272,9 +1291,7 @@ mod tests {
     /// from 1e-16 to 1e-10 past the cylinder or a plate, must end in the fluid without an error.
     #[test]
     fn grazing_crossings_end_in_the_fluid() {
-        let domain = PeriodicBox::new(DVec3::new(10.0, 10.0, 9.0)).unwrap();
-        let field = wall_field(PairParams::groot_warren()).unwrap();
-        let dt = 0.01;
+        let field = groot_warren_wall_field();
         let cyl = WallShape::Cylinder {
             axis: 2,
             centre: [5.0, 5.0],
@@ -1283,14 +1300,7 @@ mod tests {
         let mut cases = 0;
         for shape in [cyl, plates()] {
             for refl in [Reflection::BounceBack, Reflection::Specular] {
-                let mut walls = Walls::new(
-                    shape,
-                    WallConfig {
-                        reflection: refl,
-                        ..WallConfig::default()
-                    },
-                )
-                .unwrap();
+                let mut walls = walls_reflecting(shape, refl);
                 for k in 0..2000 {
                     let a = 0.0031 * k as f64;
                     // a point on the surface and the outward normal there
@@ -1314,23 +1324,10 @@ mod tests {
                     // arriving from the fluid, obliquely
                     let tangent = n.cross(DVec3::new(0.3, 0.5, 0.8)).normalize();
                     let v = n * (0.5 + (k % 5) as f64) + tangent * (1.0 + 0.7 * a.sin());
-                    let (mut pos, mut vel, mut force) = (vec![x], vec![v], vec![DVec3::ZERO]);
-                    let mut s = StateMut {
-                        pos: &mut pos,
-                        vel: &mut vel,
-                        force: &mut force,
-                        ptype: &[FLUID_TYPE],
-                        id: &[0],
-                        domain: &domain,
-                        field: &field,
-                        dt,
-                        step: k as u64,
-                    };
-                    walls
-                        .after_position_update(&mut s)
+                    let (pos, _) = reflect_one(&mut walls, &field, x, v, k as u64)
                         .unwrap_or_else(|e| panic!("{refl:?}, case {k}, depth {depth:e}: {e}"));
-                    assert!(shape.signed_distance(pos[0]) <= 0.0, "{refl:?}, case {k}: {}", pos[0]);
-                    assert!((pos[0] - x).length() < 2.0 * v.length() * dt);
+                    assert!(shape.signed_distance(pos) <= 0.0, "{refl:?}, case {k}: {pos}");
+                    assert!((pos - x).length() < 2.0 * v.length() * REFLECT_DT);
                     cases += 1;
                 }
             }
