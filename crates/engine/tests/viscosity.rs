@@ -787,9 +787,10 @@ fn viscosity_cytosol_lambda5_dense_quick() {
 /// against its outer fluid's measured η. With γ = 205 (5 × 41) the dense cytosol measured
 /// 1059.5 ± 1.8, λ = 4.645 ± 0.008: the table's γ = 205 point; with γ = 222.5 (read off the
 /// table before it held that point) it measured 1154.0 ± 1.3, λ = 5.059 ± 0.006: the table's
-/// γ = 222.5 point.
-/// Prints λ_measured = η_in/η_out ± SE and asserts it within 3 SE + 1 % of 5 (24.5 min on 2
-/// cores; the capillary fluid's part 9.5 min).
+/// γ = 222.5 point. At γ = 220.0 it measures 1136.2 ± 1.2, λ = 4.981 ± 0.005 (the capillary
+/// fluid's 4.995 ± 0.026).
+/// Prints λ_measured = η_in/η_out ± SE and asserts it within 3 SE + 1 % of 5 (17–25 min on 2
+/// cores; the capillary fluid's part 8–9.5 min).
 #[test]
 #[ignore]
 fn viscosity_cytosol_lambda5_long() {
