@@ -1316,7 +1316,7 @@ mod tests {
                             (DVec3::new(0.37 * a.cos() + 4.0, 0.29 * a.sin() + 4.0, z), n)
                         }
                     };
-                    let depth = 10f64.powi(-16 + (k % 7) as i32);
+                    let depth = 10f64.powi(-16 + k % 7);
                     let x = on + n * depth;
                     if shape.signed_distance(x) <= 0.0 {
                         continue;

@@ -12,6 +12,9 @@ use hemodpd_engine::params::{
 };
 use hemodpd_engine::{init, observe, EngineError, ForceField, PairParams, SimConfig, Simulation};
 
+/// A measured mean and its standard error.
+type MeanSe = (f64, f64);
+
 /// Mean kinetic kBT and virial pressure of a periodic box of side `side` of a fluid of the dense
 /// fluid's family (`pair`: the dense or the viscous fluid) at number density `density` over
 /// `nsample` steps after `neq` (pressure sampled every 5th step), with block-averaged standard
@@ -24,7 +27,7 @@ fn try_measure(
     neq: u64,
     nsample: u64,
     seed: u64,
-) -> Result<((f64, f64), (f64, f64)), EngineError> {
+) -> Result<(MeanSe, MeanSe), EngineError> {
     let config = SimConfig::new(DVec3::splat(side), dt, seed);
     let field = ForceField::single(pair);
     let spec = init::FluidSpec {
