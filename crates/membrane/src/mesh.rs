@@ -247,6 +247,61 @@ pub fn contains(p: DVec3, x: &[DVec3], triangles: &[[u32; 3]]) -> bool {
     winding_number(p, x, triangles) > 0.5
 }
 
+/// Whether the segment p–q passes through the interior or the boundary of the triangle a, b, c
+/// (a segment lying in the triangle's plane is not counted).
+fn segment_meets_triangle(p: DVec3, q: DVec3, a: DVec3, b: DVec3, c: DVec3) -> bool {
+    let n = (b - a).cross(c - a);
+    let (dp, dq) = ((p - a).dot(n), (q - a).dot(n));
+    if dp == dq || (dp > 0.0 && dq > 0.0) || (dp < 0.0 && dq < 0.0) {
+        return false;
+    }
+    let h = p + (q - p) * (dp / (dp - dq));
+    let nn = n.length_squared();
+    let w1 = (h - a).cross(c - a).dot(n) / nn;
+    let w2 = (b - a).cross(h - a).dot(n) / nn;
+    w1 >= 0.0 && w2 >= 0.0 && w1 + w2 <= 1.0
+}
+
+/// Number of pairs of triangles of the surface (`x`, `triangles`) that share no vertex and
+/// intersect (an edge of one passes through the other): 0 for a surface that does not pass
+/// through itself. A self-intersecting membrane has regions enclosed twice or not at all, where
+/// the inside of the cell is undefined ([`winding_number`] 2 or 0 between its sheets). Triangles
+/// sorted by their lowest z and swept, so the cost is about the number of pairs whose z ranges
+/// overlap.
+pub fn self_intersections(x: &[DVec3], triangles: &[[u32; 3]]) -> usize {
+    let corners = |t: &[u32; 3]| t.map(|k| x[k as usize]);
+    let boxes: Vec<(DVec3, DVec3)> = triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = corners(t);
+            (a.min(b).min(c), a.max(b).max(c))
+        })
+        .collect();
+    let mut order: Vec<usize> = (0..triangles.len()).collect();
+    order.sort_by(|&i, &j| boxes[i].0.z.total_cmp(&boxes[j].0.z));
+    let mut pairs = 0;
+    for (k, &i) in order.iter().enumerate() {
+        let (lo, hi) = boxes[i];
+        for &j in &order[k + 1..] {
+            let (lo_j, hi_j) = boxes[j];
+            if lo_j.z > hi.z {
+                break;
+            }
+            if lo_j.cmpgt(hi).any() || lo.cmpgt(hi_j).any() || triangles[i].iter().any(|v| triangles[j].contains(v)) {
+                continue;
+            }
+            let (ti, tj) = (corners(&triangles[i]), corners(&triangles[j]));
+            let crosses = |e: &[DVec3; 3], f: &[DVec3; 3]| {
+                (0..3).any(|m| segment_meets_triangle(e[m], e[(m + 1) % 3], f[0], f[1], f[2]))
+            };
+            if crosses(&ti, &tj) || crosses(&tj, &ti) {
+                pairs += 1;
+            }
+        }
+    }
+    pairs
+}
+
 /// Mesh quality report (lengths in the mesh's unit).
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct MeshQuality {
@@ -284,6 +339,22 @@ pub(crate) mod tests {
             [0, 3, 5],
         ];
         Mesh::new(v, t).unwrap()
+    }
+
+    /// An embedded surface has no self-intersections; two octahedra (one vertex list) that
+    /// overlap have some, and none once moved apart.
+    #[test]
+    fn self_intersections_of_overlapping_octahedra() {
+        let m = octahedron();
+        assert_eq!(self_intersections(&m.vertices, &m.triangles), 0);
+        let (mut xs, mut ts) = (m.vertices.clone(), m.triangles.clone());
+        xs.extend(m.vertices.iter().map(|v| *v + DVec3::new(0.5, 0.2, 0.1)));
+        ts.extend(m.triangles.iter().map(|t| t.map(|k| k + 6)));
+        assert!(self_intersections(&xs, &ts) > 0);
+        for v in &mut xs[6..] {
+            *v += DVec3::new(3.0, 0.0, 0.0);
+        }
+        assert_eq!(self_intersections(&xs, &ts), 0);
     }
 
     #[test]

@@ -120,7 +120,15 @@ pub(crate) fn press_into_tube(
         max_iterations: 500,
     };
     let t = std::time::Instant::now();
-    let r = confine::confine(model, start, &opts).map_err(|e| RunError::Output(format!("placing the cell: {e}")))?;
+    let r = confine::confine(model, start, &opts).map_err(|e| {
+        let hint = match e {
+            confine::ConfineError::SelfIntersecting { .. } => {
+                "; the tube (tube.diameter_um) is too narrow for the cell at this mesh (cell.vertices): a finer mesh or a wider tube"
+            }
+            _ => "",
+        };
+        RunError::Output(format!("placing the cell: {e}{hint}"))
+    })?;
     if r.area_deviation.abs() > 0.01 || r.volume_deviation.abs() > 0.01 {
         return Err(RunError::Output(format!(
             "placing the cell: pressed into radius {radius:.3} rc it keeps its area within {:.2} % and its volume within {:.2} %, more than 1 %: the tube is too narrow for this cell (tube.diameter_um) or the resolution too coarse (model.length_um_per_rc)",
@@ -139,6 +147,7 @@ pub(crate) fn press_into_tube(
         "residual_force": r.residual,
         "area_deviation": r.area_deviation,
         "volume_deviation": r.volume_deviation,
+        "closest_self_contact": r.closest_contact,
         "seconds": t.elapsed().as_secs_f64(),
     });
     Ok((r.positions, info))
