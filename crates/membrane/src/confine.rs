@@ -172,11 +172,11 @@ impl SelfContact {
                         let k = index(m);
                         for &j in &items[start[k] as usize..start[k + 1] as usize] {
                             let j = j as usize;
-                            if j <= i || self.near[i].binary_search(&(j as u32)).is_ok() {
+                            if j <= i {
                                 continue;
                             }
                             let d = x[j] - *p;
-                            if d.length_squared() < h * h {
+                            if d.length_squared() < h * h && self.near[i].binary_search(&(j as u32)).is_err() {
                                 pair(i, j, d);
                             }
                         }
