@@ -851,7 +851,8 @@ pub fn fit(a: FitArgs) -> Result<Value> {
 }
 
 /// The stretching scenario's membrane overrides `assigned` as overrides of a cell kind's `[cell]`
-/// (`membrane.reference`, `membrane.persistence_scale`, `recovery.membrane_viscosity_pa_s_m`
+/// (`membrane.reference`, `membrane.persistence_scale`, `membrane.max_extension_ratio`,
+/// `recovery.membrane_viscosity_pa_s_m`
 /// with the viscosity `form`); other keys have no counterpart and are left out.
 fn cell_overrides(assigned: &[String], form: Option<hemodpd_scenario::cell::ViscosityForm>) -> Vec<String> {
     let mut out = Vec::new();
@@ -860,6 +861,8 @@ fn cell_overrides(assigned: &[String], form: Option<hemodpd_scenario::cell::Visc
             out.push(format!("cell.reference={v}"));
         } else if let Some(v) = s.strip_prefix("membrane.persistence_scale=") {
             out.push(format!("cell.persistence_scale={v}"));
+        } else if let Some(v) = s.strip_prefix("membrane.max_extension_ratio=") {
+            out.push(format!("cell.max_extension_ratio={v}"));
         } else if let Some(v) = s.strip_prefix("recovery.membrane_viscosity_pa_s_m=") {
             out.push(format!("cell.membrane_viscosity_pa_s_m={v}"));
             if let Some(f) = form {

@@ -369,6 +369,18 @@ fn bad_capillary_input_names_the_key() {
         e.contains("cell.vertices") && e.contains("50") && e.contains("100"),
         "{e}"
     );
+    // links that could not stretch to 1.5 L0
+    let e = err(&["cell.max_extension_ratio=1.2"]);
+    assert!(
+        e.contains("cell.max_extension_ratio") && e.contains("1.2") && e.contains("1.5–6.5"),
+        "{e}"
+    );
+    // an unknown named parameter set lists the known ones
+    let e = err(&["cell.parameters=\"calibrated-x1\""]);
+    assert!(
+        e.contains("cell.parameters") && e.contains("calibrated-x0") && e.contains("paper"),
+        "{e}"
+    );
     // a drive whose Mach number breaks the bound when the mapping may not adapt
     let e = err(&["model.thermal_factor=\"exact\""]);
     assert!(e.contains("stage.mean_velocity_m_per_s") && e.contains("Mach"), "{e}");

@@ -99,6 +99,63 @@ fn calibrated_set_matches_what_the_fit_found() {
     assert!(rb < 0.85, "RMS of both diameters {rb}");
 }
 
+/// The named set `"calibrated-x0"` (docs/fit.md: Mills 2004 fitted with the links' maximum
+/// extension free, Lmax/L0 = 2.0 instead of 3.17, persistence scale 5, v = 0.98): the RMS of D_A
+/// and of D_T against Mills are both ≤ 0.5 µm, the target, which neither diameter of
+/// `"calibrated"` meets (measured 0.38 / 0.47 µm against 0.91 / 0.69). The set's values reach
+/// the scenario; D_A and D_T lie inside Mills' error bars at every force (the paper's and the
+/// two-parameter sets leave D_T outside them from 16 to 109 pN), and the stiffening shows: D_A
+/// grows by less than 0.3 µm from 172 to 193 pN (Mills 0.44 µm; the paper's set 0.66 µm).
+#[test]
+fn calibrated_x0_set_meets_mills_in_both_diameters() {
+    let s = scenario(&["membrane.parameters=\"calibrated-x0\""]);
+    assert_eq!(
+        s.membrane.reference,
+        hemodpd_membrane::ReferenceState::Spheroid { reduced_volume: 0.98 }
+    );
+    assert_eq!(
+        (s.membrane.persistence_scale, s.membrane.max_extension_ratio),
+        (5.0, 2.0)
+    );
+    let prepared = stretching::prepare(&s).unwrap();
+    let points = stretching::solve(&s, &prepared, |_| {}).unwrap();
+    let mills = mills_2004();
+    let (mut sa, mut st, mut n) = (0.0, 0.0, 0.0);
+    for p in &points {
+        if let Some(m) = mills.iter().find(|m| (m.force_pn - p.force).abs() < 1e-9) {
+            sa += (p.axial_diameter - m.da_um).powi(2);
+            st += (p.transverse_diameter - m.dt_um).powi(2);
+            n += 1.0;
+            assert!(
+                p.axial_diameter > m.da_lo && p.axial_diameter < m.da_hi,
+                "D_A at {} pN",
+                p.force
+            );
+            assert!(
+                p.transverse_diameter > m.dt_lo && p.transverse_diameter < m.dt_hi,
+                "D_T at {} pN",
+                p.force
+            );
+        }
+    }
+    let (ra, rt) = ((sa / n).sqrt(), (st / n).sqrt());
+    eprintln!("calibrated-x0: RMS D_A {ra:.3}, D_T {rt:.3} µm over {n} forces");
+    assert_eq!(n, 13.0);
+    assert!(ra <= 0.5 && rt <= 0.5, "RMS {ra} / {rt}");
+    let da = |f: f64| {
+        points
+            .iter()
+            .find(|p| (p.force - f).abs() < 1e-6)
+            .unwrap()
+            .axial_diameter
+    };
+    assert!(
+        da(192.688) - da(172.374) < 0.3,
+        "D_A grows {} µm",
+        da(192.688) - da(172.374)
+    );
+}
+
 /// Area and volume: within 0.1 % when the cell is left alone, within 1 % at 200 pN (the
 /// global constraints' job; k_a and k_v in docs/model.md).
 #[test]
@@ -281,6 +338,34 @@ fn recovery_after_release_against_hochmuth_1979() {
     assert_eq!(csv.lines().filter(|l| !l.starts_with('#')).count(), 1 + 101);
 }
 
+/// The recovery scenario with the named set `"calibrated-x0"` (η_m = 3.9e-7 N·s/m, fitted to
+/// Hochmuth 1979 with the set's stiffer links held; docs/fit.md): t_c within 10 % of the mean of
+/// Hochmuth's cells (measured 0.147 s against 0.147 s; the fit's σ on η_m, 17 %, is the scale of
+/// the bound), area and volume within 1 %.
+#[test]
+fn recovery_with_the_calibrated_x0_set_against_hochmuth_1979() {
+    use hemodpd_scenario::RunContext;
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/recovery.toml");
+    let sets = ["output.shapes=false", "membrane.parameters=\"calibrated-x0\""].map(String::from);
+    let s = hemodpd_scenario::load(&path, &sets).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let r = hemodpd_scenario::run(&s, &RunContext::new(dir.path(), 0, false)).unwrap();
+    let rec = &r["recovery"];
+    let f = |p: &str| {
+        rec.pointer(p)
+            .and_then(|v| v.as_f64())
+            .unwrap_or_else(|| panic!("{p} in {rec}"))
+    };
+    let (tc, mean) = (f("/t_c_s"), f("/hochmuth1979/mean_t_c_s"));
+    eprintln!(
+        "calibrated-x0: t_c {tc:.4} s against Hochmuth {mean:.4} s, λ0 {:.3}",
+        f("/lambda_0")
+    );
+    assert_eq!(f("/membrane_viscosity_pa_s_m"), 3.9e-7);
+    assert!((tc / mean - 1.0).abs() < 0.1, "t_c {tc} against Hochmuth's {mean}");
+    assert!(f("/max_abs_area_deviation") < 0.01 && f("/max_abs_volume_deviation") < 0.01);
+}
+
 /// A run stopped during the recovery (after every force) resumes by redoing the release, and
 /// ends with the uninterrupted run's results bit for bit; bad `[recovery]` values are refused
 /// with the key and what is allowed.
@@ -326,6 +411,7 @@ fn recovery_interrupted_and_resumed_and_bad_values() {
         ("recovery.duration_s=-1.0", "recovery.duration_s"),
         ("recovery.membrane_viscosity_pa_s_m=0.0", "never settles"),
         ("recovery.inertia_fraction=0.5", "recovery.inertia_fraction"),
+        ("membrane.max_extension_ratio=7.0", "membrane.max_extension_ratio"),
     ] {
         let extra: &[&str] = if set.contains("membrane_viscosity") {
             &[set, "recovery.medium_viscosity_pa_s=0.0"]

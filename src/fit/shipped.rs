@@ -71,6 +71,7 @@ pub(super) const SHIPPED: &[Shipped] = &[Shipped {
     parameters: &[
         ("reduced_volume", "membrane.reference={ spheroid = { reduced_volume = % } }"),
         ("persistence_scale", "membrane.persistence_scale"),
+        ("max_extension_ratio", "membrane.max_extension_ratio"),
     ],
     observables: |c| c.none().map(|_| (Vec::new(), mills2004_observables())),
     about: "Mills et al. 2004 optical-tweezers stretching: the axial and transverse diameters at each of the 13 forces against the measured means, σ = half the error bar",
@@ -83,6 +84,7 @@ Shipped {
     parameters: &[
         ("reduced_volume", "membrane.reference={ spheroid = { reduced_volume = % } }"),
         ("persistence_scale", "membrane.persistence_scale"),
+        ("max_extension_ratio", "membrane.max_extension_ratio"),
         ("membrane_viscosity", "recovery.membrane_viscosity_pa_s_m"),
     ],
     observables: |c| c.none().map(|_| (Vec::new(), hochmuth1979_observables())),
@@ -128,6 +130,7 @@ const SHEAR_SETS: &[&str] = &[
 const CELL_PARAMETERS: &[(&str, &str)] = &[
     ("reduced_volume", "cell.reference={ spheroid = { reduced_volume = % } }"),
     ("persistence_scale", "cell.persistence_scale"),
+    ("max_extension_ratio", "cell.max_extension_ratio"),
     ("membrane_viscosity", "cell.membrane_viscosity_pa_s_m"),
 ];
 

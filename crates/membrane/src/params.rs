@@ -27,7 +27,8 @@ pub const MIN_VERTICES: usize = 100;
 
 /// Parameters of one level of coarse-graining, all in SI.
 ///
-/// Invariants: `lmax_m = LMAX_OVER_L0 · l0_m`; μ0 and K are the same at every N (Eq. 12).
+/// Invariants: `lmax_m = LMAX_OVER_L0 · l0_m` unless [`ModelParams::with_max_extension`] sets
+/// another ratio; μ0 and K are the same at every N (Eq. 12).
 #[derive(Clone, Debug, Serialize)]
 pub struct ModelParams {
     /// Number of vertices.
@@ -117,7 +118,35 @@ impl ModelParams {
         let ratio = (fine::N as f64 / n as f64).sqrt(); // L0c / L0f, Eq. 8
         let l0 = fine::L0_M * ratio;
         let p = fine::P_M / ratio * p_scale; // Eq. 12
-        Ok(Self::from_parts(n, temperature_k, l0, p, fine::THETA0_DEG * ratio))
+        Ok(Self::from_parts(
+            n,
+            temperature_k,
+            l0,
+            p,
+            fine::THETA0_DEG * ratio,
+            fine::LMAX_OVER_L0,
+        ))
+    }
+
+    /// The same level with the links' maximum extension Lmax = `lmax_over_l0`·L0 instead of the
+    /// paper's 3.17 (x0 = 1/`lmax_over_l0`): C (Eq. 4), μ0 and K (Eqs. 10, 11) follow it at the
+    /// same persistence length. A smaller ratio stiffens the links sooner as they stretch.
+    pub fn with_max_extension(self, lmax_over_l0: f64) -> Result<Self, ParamsError> {
+        if !(lmax_over_l0 > 1.0 && lmax_over_l0.is_finite()) {
+            return Err(ParamsError::OutOfRange {
+                name: "Lmax / L0",
+                value: lmax_over_l0,
+                allowed: "> 1",
+            });
+        }
+        Ok(Self::from_parts(
+            self.n,
+            self.temperature_k,
+            self.l0_m,
+            self.persistence_length_m,
+            self.theta0_deg,
+            lmax_over_l0,
+        ))
     }
 
     /// Parameters with an explicit persistence length (e.g. the fine p = 7.5 nm at N = 500,
@@ -131,12 +160,19 @@ impl ModelParams {
                 allowed: "> 0",
             });
         }
-        Ok(Self::from_parts(n, temperature_k, base.l0_m, p_m, base.theta0_deg))
+        Ok(Self::from_parts(
+            n,
+            temperature_k,
+            base.l0_m,
+            p_m,
+            base.theta0_deg,
+            fine::LMAX_OVER_L0,
+        ))
     }
 
-    fn from_parts(n: usize, temperature_k: f64, l0: f64, p: f64, theta0_deg: f64) -> Self {
+    fn from_parts(n: usize, temperature_k: f64, l0: f64, p: f64, theta0_deg: f64, lmax_over_l0: f64) -> Self {
         let kbt = BOLTZMANN_J_PER_K * temperature_k;
-        let lmax = fine::LMAX_OVER_L0 * l0;
+        let lmax = lmax_over_l0 * l0;
         let x0 = l0 / lmax;
         let mu0 = shear_modulus_eq10(kbt, lmax, p, x0);
         let k = area_modulus_eq11(kbt, lmax, p, x0);

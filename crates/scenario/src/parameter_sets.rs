@@ -2,7 +2,8 @@
 //! `membrane.parameters` (stretching).
 //!
 //! A set names the membrane's free parameters at once: the stress-free reference, the scale of
-//! the persistence length (μ0 ∝ 1/p) and the membrane viscosity with its form. [`expand`] writes
+//! the persistence length (μ0 ∝ 1/p), the links' maximum extension Lmax/L0 and the membrane
+//! viscosity with its form. [`expand`] writes
 //! the set's values into the file's section before it is parsed, for the keys the file (or a
 //! `--set`, or `--params`) does not give itself: an explicit key always wins, and a file without
 //! `parameters` keeps the meaning it had (the paper's set), so an older scenario file runs as it
@@ -22,6 +23,8 @@ pub struct ParameterSet {
     pub reduced_volume: Option<f64>,
     /// Multiplies the paper's Eq. 12 persistence length (μ0 ∝ 1/p).
     pub persistence_scale: f64,
+    /// Lmax/L0 of the WLC links (the paper's 3.17).
+    pub max_extension_ratio: f64,
     /// 2D membrane viscosity η_m, N·s/m (0: none).
     pub membrane_viscosity_pa_s_m: f64,
     /// How η_m becomes link friction: "central" or "fedosov".
@@ -35,6 +38,7 @@ pub const PAPER: ParameterSet = ParameterSet {
     origin: "Pivkin & Karniadakis 2008 (stress-free on the resting biconcave cell, Eq. 12's persistence length, no membrane viscosity)",
     reduced_volume: None,
     persistence_scale: 1.0,
+    max_extension_ratio: 3.17,
     membrane_viscosity_pa_s_m: 0.0,
     membrane_viscosity_form: "fedosov",
 };
@@ -47,12 +51,27 @@ pub const CALIBRATED: ParameterSet = ParameterSet {
     origin: "hemodpd fit scenarios/fits/cell.toml against Mills 2004 and Hochmuth 1979 (v = 0.972 ± 0.017, p × 1.34 ± 0.15, η_m = 4.74e-7 ± 1.06e-7 N·s/m, central form; docs/fit.md)",
     reduced_volume: Some(0.972),
     persistence_scale: 1.34,
+    max_extension_ratio: 3.17,
     membrane_viscosity_pa_s_m: 4.74e-7,
     membrane_viscosity_form: "central",
 };
 
+/// `hemodpd fit scenarios/fits/mills-x0.toml` (Mills 2004 with the links' maximum extension
+/// free: v = 0.981 ± 0.008, p × 5.3 ± 2.7, Lmax/L0 = 1.97 ± 0.24), rounded to v 0.98, p × 5,
+/// Lmax/L0 2.0 (μ0 = 4.0 µN/m, stiffening sooner), and `scenarios/fits/hochmuth-x0.toml`
+/// (Hochmuth 1979 with those held: η_m = 3.90e-7 ± 0.68e-7 N·s/m, central form). docs/fit.md.
+pub const CALIBRATED_X0: ParameterSet = ParameterSet {
+    name: "calibrated-x0",
+    origin: "hemodpd fit scenarios/fits/mills-x0.toml and hochmuth-x0.toml against Mills 2004 and Hochmuth 1979 with the links' maximum extension free (v = 0.98, p × 5, Lmax/L0 = 2.0, η_m = 3.9e-7 N·s/m, central form; docs/fit.md)",
+    reduced_volume: Some(0.98),
+    persistence_scale: 5.0,
+    max_extension_ratio: 2.0,
+    membrane_viscosity_pa_s_m: 3.9e-7,
+    membrane_viscosity_form: "central",
+};
+
 /// Every named set, in the order messages list them.
-pub const SETS: &[ParameterSet] = &[PAPER, CALIBRATED];
+pub const SETS: &[ParameterSet] = &[PAPER, CALIBRATED, CALIBRATED_X0];
 
 /// The set named `name`.
 pub fn find(name: &str) -> Option<&'static ParameterSet> {
@@ -109,6 +128,7 @@ pub(crate) fn expand(table: &mut toml::Table, kind: &str, file: &str) -> Result<
     if let Some(t) = table.get_mut(section).and_then(|v| v.as_table_mut()) {
         fill(t, "reference", reference);
         fill(t, "persistence_scale", toml::Value::Float(set.persistence_scale));
+        fill(t, "max_extension_ratio", toml::Value::Float(set.max_extension_ratio));
     }
     // the viscosity: in the cell section of the flow kinds; in the stretching kind, only where
     // the file releases the cell ([recovery]), the one stage in which it acts

@@ -678,11 +678,16 @@ fn measure_moduli(l0: f64, lmax: f64, w: f64, c: f64, eps: f64) -> (f64, f64, f6
 }
 
 /// μ0 and K of Eqs. 10–11 against the response of a flat periodic equilateral patch (side L0,
-/// the paper's uniform reference, C from Eq. 4), at N = 500 and N = 5000 in µm / pN.
+/// the paper's uniform reference, C from Eq. 4), at N = 500 and N = 5000 in µm / pN, with the
+/// paper's Lmax/L0 = 3.17 and with the stiffer 2.2 (`cell.max_extension_ratio`).
 #[test]
 fn moduli_of_a_flat_patch_match_eqs_10_11() {
-    for n in [500, 5000, 23867] {
-        let params = ModelParams::coarse_grained(n, 300.0).unwrap();
+    for (n, ratio) in [(500, 3.17), (5000, 3.17), (23867, 3.17), (500, 2.2), (5000, 1.8)] {
+        let params = ModelParams::coarse_grained(n, 300.0)
+            .unwrap()
+            .with_max_extension(ratio)
+            .unwrap();
+        assert!((params.lmax_m / params.l0_m - ratio).abs() < 1e-12);
         let c = MembraneConstants::from_params(&params, 1e-6, 1e-18, 0.0, 0.0);
         let lmax = c.lmax_over_l0 * c.l0;
         let w = c.kbt / (4.0 * c.persistence_length);
@@ -692,7 +697,7 @@ fn moduli_of_a_flat_patch_match_eqs_10_11() {
         let k_eq = params.area_modulus_n_per_m * 1e6;
         let y = 4.0 * k * mu / (k + mu);
         println!(
-            "N = {n:5}: measured mu0 = {mu:.4} pN/um (Eq. 10: {mu_eq:.4}, ratio - 1 = {:.1e}), K = {k:.4} pN/um (Eq. 11: {k_eq:.4}, ratio - 1 = {:.1e}), Y = {y:.4}, tension at rest {tension:.1e} pN/um, max vertex force {fres:.1e} pN",
+            "N = {n:5}, Lmax/L0 = {ratio}: measured mu0 = {mu:.4} pN/um (Eq. 10: {mu_eq:.4}, ratio - 1 = {:.1e}), K = {k:.4} pN/um (Eq. 11: {k_eq:.4}, ratio - 1 = {:.1e}), Y = {y:.4}, tension at rest {tension:.1e} pN/um, max vertex force {fres:.1e} pN",
             mu / mu_eq - 1.0,
             k / k_eq - 1.0
         );

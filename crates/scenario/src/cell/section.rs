@@ -22,6 +22,17 @@ fn d_temp() -> f64 {
 fn d_vertices() -> i64 {
     500
 }
+fn d_max_extension() -> f64 {
+    hemodpd_membrane::params::fine::LMAX_OVER_L0
+}
+
+/// The allowed Lmax/L0 (`cell.max_extension_ratio`, `membrane.max_extension_ratio`): links that
+/// can stretch to at least 1.5 L0 (the stretched cell's links reach ≈ 1.4 L0 at 200 pN), up to
+/// twice the paper's 3.17.
+pub(crate) const MAX_EXTENSION_RANGE: (f64, f64) = (1.5, 6.5);
+pub(crate) const MAX_EXTENSION_ALLOWED: &str =
+    "1.5–6.5: Lmax/L0 of the WLC links (the paper's 3.17; x0 = 1/ratio; smaller stiffens the membrane at large strain)";
+
 fn d_ka() -> f64 {
     hemodpd_membrane::forces::DEFAULT_K_AREA_N_PER_M
 }
@@ -60,9 +71,9 @@ pub struct CellSection {
     /// Temperature, K (default 300, the paper's).
     #[serde(default = "d_temp")]
     pub temperature_k: f64,
-    /// A named membrane parameter set (`"paper"`, `"calibrated"`; crate::parameter_sets) whose
-    /// values fill `reference`, `persistence_scale` and the membrane viscosity where the file
-    /// gives none. Absent: the keys' own defaults, the paper's set.
+    /// A named membrane parameter set (`"paper"`, `"calibrated"`, `"calibrated-x0"`;
+    /// crate::parameter_sets) whose values fill `reference`, `persistence_scale`,
+    /// `max_extension_ratio` and the membrane viscosity where the file gives none. Absent: the keys' own defaults, the paper's set.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub parameters: Option<String>,
     /// "stress-free" (default: the resting cell), "uniform" (the paper's single L0), or
@@ -73,6 +84,10 @@ pub struct CellSection {
     /// Multiplies the Eq. 12 persistence length (default 1).
     #[serde(default = "d_one")]
     pub persistence_scale: f64,
+    /// Lmax/L0, the WLC links' maximum extension over their rest length (default 3.17, the
+    /// paper's; x0 = 1/ratio); μ0 and K follow (Eqs. 10, 11) at the same persistence length.
+    #[serde(default = "d_max_extension")]
+    pub max_extension_ratio: f64,
     /// k_a, N/m (default 2e-3).
     #[serde(default = "d_ka")]
     pub area_constraint_n_per_m: f64,
@@ -108,8 +123,9 @@ impl CellSection {
             ReferenceState::Uniform => "uniform (the paper's one L0)".into(),
         };
         format!(
-            "Membrane parameters: {set}\n    stress-free on {reference}, persistence length × {}, η_m = {:.4e} N·s/m ({} form)\n",
+            "Membrane parameters: {set}\n    stress-free on {reference}, persistence length × {}, Lmax/L0 = {}, η_m = {:.4e} N·s/m ({} form)\n",
             self.persistence_scale,
+            self.max_extension_ratio,
             self.membrane_viscosity_pa_s_m,
             match self.membrane_viscosity_form {
                 ViscosityForm::Central => "central",
@@ -287,11 +303,10 @@ pub(crate) use model_section;
 
 /// The membrane parameters of level N of a `[cell]` section.
 pub(crate) fn cell_params(cell: &CellSection) -> Result<ModelParams, RunError> {
-    Ok(ModelParams::with_persistence_scale(
-        cell.vertices as usize,
-        cell.temperature_k,
-        cell.persistence_scale,
-    )?)
+    Ok(
+        ModelParams::with_persistence_scale(cell.vertices as usize, cell.temperature_k, cell.persistence_scale)?
+            .with_max_extension(cell.max_extension_ratio)?,
+    )
 }
 
 /// The [`ThermalChoice`] of a `model.thermal_factor` setting.
@@ -319,7 +334,20 @@ pub(crate) fn validate_cell(cell: &CellSection, file: &str) -> Result<(), Scenar
         ));
     }
     range("cell.temperature_k", cell.temperature_k, 250.0, 350.0, "250–350 K")?;
-    range("cell.persistence_scale", cell.persistence_scale, 0.5, 2.0, "0.5–2")?;
+    range(
+        "cell.persistence_scale",
+        cell.persistence_scale,
+        0.1,
+        10.0,
+        "a factor between 0.1 and 10 multiplying the Eq. 12 persistence length",
+    )?;
+    range(
+        "cell.max_extension_ratio",
+        cell.max_extension_ratio,
+        MAX_EXTENSION_RANGE.0,
+        MAX_EXTENSION_RANGE.1,
+        MAX_EXTENSION_ALLOWED,
+    )?;
     validate_reference(&cell.reference, "cell.reference", &c)?;
     range(
         "cell.membrane_viscosity_pa_s_m",

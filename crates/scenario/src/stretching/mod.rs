@@ -4,6 +4,7 @@
 
 pub mod recovery;
 
+use crate::cell::section::{MAX_EXTENSION_ALLOWED, MAX_EXTENSION_RANGE};
 use crate::context::{RunContext, RunError};
 use crate::file::{one, yes, Check, ScenarioError};
 use crate::mesh_cache::{self, constants_um_pn};
@@ -21,6 +22,9 @@ use std::path::PathBuf;
 
 fn default_temperature() -> f64 {
     300.0
+}
+fn default_max_extension() -> f64 {
+    hemodpd_membrane::params::fine::LMAX_OVER_L0
 }
 fn default_k_area() -> f64 {
     hemodpd_membrane::forces::DEFAULT_K_AREA_N_PER_M
@@ -47,9 +51,10 @@ pub struct MembraneSection {
     /// Temperature, K (default 300).
     #[serde(default = "default_temperature")]
     pub temperature_k: f64,
-    /// A named membrane parameter set (`"paper"`, `"calibrated"`; crate::parameter_sets) whose
-    /// values fill `reference`, `persistence_scale` and, with `[recovery]`, its membrane
-    /// viscosity where the file gives none. Absent: the keys' own defaults, the paper's set.
+    /// A named membrane parameter set (`"paper"`, `"calibrated"`, `"calibrated-x0"`;
+    /// crate::parameter_sets) whose values fill `reference`, `persistence_scale`,
+    /// `max_extension_ratio` and, with `[recovery]`, its membrane viscosity where the file gives
+    /// none. Absent: the keys' own defaults, the paper's set.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub parameters: Option<String>,
     /// `"stress-free"` (default: each link and triangle unstrained at rest), `"uniform"` (the
@@ -63,6 +68,11 @@ pub struct MembraneSection {
     /// Explicit persistence length in nm, replacing Eq. 12 (e.g. the fine model's 7.5).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub persistence_length_nm: Option<f64>,
+    /// Lmax/L0, the WLC links' maximum extension over their rest length (default 3.17, the
+    /// paper's; x0 = 1/ratio). Smaller stiffens the links sooner as they stretch; μ0 and K follow
+    /// (Eqs. 10, 11) at the same persistence length.
+    #[serde(default = "default_max_extension")]
+    pub max_extension_ratio: f64,
     /// Global area constraint k_a, N/m (default 2e-3 = 2000 pN/µm ≈ 240 μ0).
     #[serde(default = "default_k_area")]
     pub area_constraint_n_per_m: f64,
@@ -155,6 +165,13 @@ fn validate_membrane(m: &MembraneSection, c: &Check) -> Result<(), ScenarioError
         0.1,
         10.0,
         "a factor between 0.1 and 10 multiplying the Eq. 12 persistence length",
+    )?;
+    c.range(
+        "membrane.max_extension_ratio",
+        m.max_extension_ratio,
+        MAX_EXTENSION_RANGE.0,
+        MAX_EXTENSION_RANGE.1,
+        MAX_EXTENSION_ALLOWED,
     )?;
     if let Some(p) = m.persistence_length_nm {
         c.range(
@@ -354,10 +371,11 @@ pub fn compare_with_mills(force: &[f64], da: &[f64], dt: &[f64]) -> serde_json::
 pub fn params_of(s: &StretchingScenario) -> Result<ModelParams, RunError> {
     let m = &s.membrane;
     let n = m.vertices as usize;
-    Ok(match m.persistence_length_nm {
+    let params = match m.persistence_length_nm {
         Some(p_nm) => ModelParams::with_persistence_length(n, m.temperature_k, p_nm * 1e-9)?,
         None => ModelParams::with_persistence_scale(n, m.temperature_k, m.persistence_scale)?,
-    })
+    };
+    Ok(params.with_max_extension(m.max_extension_ratio)?)
 }
 
 /// The resting mesh (µm) of a scenario: the user's file or the cached relaxed mesh.
