@@ -191,20 +191,26 @@ fn an_interrupted_fit_resumes() {
     assert_eq!(body(&a), body(&b));
 }
 
+/// Runs the shipped fit file `scenarios/fits/NAME` with 3 design points per parameter in `dir`;
+/// its `fit.json` and output directory.
+fn shipped_fit_on_three_points(dir: &Path, name: &str) -> (Value, PathBuf) {
+    let text = std::fs::read_to_string(root().join("scenarios/fits").join(name))
+        .unwrap()
+        .replace("points = 5", "points = 3");
+    let file = dir.join(name);
+    std::fs::write(&file, text).unwrap();
+    let out = dir.join("fit");
+    let r = hemodpd(&["fit", file.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet"]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    (fit_json(&out), out)
+}
+
 /// The shipped Mills 2004 experiment on a 3 × 3 design: the fit lies inside the bounds with a
 /// finite uncertainty, and its χ² is no worse than the best design point's.
 #[test]
 fn shipped_mills_experiment_fits() {
     let dir = tempfile::tempdir().unwrap();
-    let text = std::fs::read_to_string(root().join("scenarios/fits/mills.toml"))
-        .unwrap()
-        .replace("points = 5", "points = 3");
-    let file = dir.path().join("mills.toml");
-    std::fs::write(&file, text).unwrap();
-    let out = dir.path().join("fit");
-    let r = hemodpd(&["fit", file.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet"]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    let f = fit_json(&out);
+    let (f, _) = shipped_fit_on_three_points(dir.path(), "mills.toml");
     let e = &f["experiments"][0];
     assert_eq!(e["runs"], 9);
     assert_eq!(e["observables"].as_array().unwrap().len(), 26);
@@ -228,15 +234,7 @@ fn shipped_mills_experiment_fits() {
 #[test]
 fn shipped_mills_x0_fit_finds_the_stiffening_links() {
     let dir = tempfile::tempdir().unwrap();
-    let text = std::fs::read_to_string(root().join("scenarios/fits/mills-x0.toml"))
-        .unwrap()
-        .replace("points = 5", "points = 3");
-    let file = dir.path().join("mills-x0.toml");
-    std::fs::write(&file, text).unwrap();
-    let out = dir.path().join("fit");
-    let r = hemodpd(&["fit", file.to_str().unwrap(), "--out", out.to_str().unwrap(), "--quiet"]);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-    let f = fit_json(&out);
+    let (f, out) = shipped_fit_on_three_points(dir.path(), "mills-x0.toml");
     let e = &f["experiments"][0];
     assert_eq!(e["runs"], 27);
     let chi2 = e["chi2_at_fit"].as_f64().unwrap();

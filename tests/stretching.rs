@@ -13,6 +13,36 @@ fn scenario(sets: &[&str]) -> hemodpd_scenario::stretching::StretchingScenario {
     }
 }
 
+/// The shipped stretching scenario with `sets`, solved at every force, against Mills 2004: the
+/// RMS of D_A and of D_T over the forces Mills measured (and their number), after asserting that
+/// D_A, and with `dt_inside` D_T too, lie inside Mills' error bars at each of them; and the
+/// solved points.
+fn rms_against_mills(sets: &[&str], dt_inside: bool) -> (f64, f64, f64, Vec<hemodpd_membrane::stretch::StretchPoint>) {
+    let s = scenario(sets);
+    let prepared = stretching::prepare(&s).unwrap();
+    let points = stretching::solve(&s, &prepared, |_| {}).unwrap();
+    let mills = mills_2004();
+    let (mut sa, mut st, mut n) = (0.0, 0.0, 0.0);
+    for p in &points {
+        if let Some(m) = mills.iter().find(|m| (m.force_pn - p.force).abs() < 1e-9) {
+            sa += (p.axial_diameter - m.da_um).powi(2);
+            st += (p.transverse_diameter - m.dt_um).powi(2);
+            n += 1.0;
+            assert!(
+                p.axial_diameter > m.da_lo && p.axial_diameter < m.da_hi,
+                "D_A at {} pN",
+                p.force
+            );
+            assert!(
+                !dt_inside || (p.transverse_diameter > m.dt_lo && p.transverse_diameter < m.dt_hi),
+                "D_T at {} pN",
+                p.force
+            );
+        }
+    }
+    ((sa / n).sqrt(), (st / n).sqrt(), n, points)
+}
+
 /// D_A and D_T at 0, 68, 131 and 193 pN (N = 500, the paper's parameter set).
 ///
 /// Tolerances: Mills' error bars (half-widths 0.6–2.4 µm) are the experimental cell-to-cell
@@ -76,23 +106,8 @@ fn calibrated_set_matches_what_the_fit_found() {
         hemodpd_membrane::ReferenceState::Spheroid { reduced_volume: 0.972 }
     );
     assert_eq!(s.membrane.persistence_scale, 1.34);
-    let prepared = stretching::prepare(&s).unwrap();
-    let points = stretching::solve(&s, &prepared, |_| {}).unwrap();
-    let mills = mills_2004();
-    let (mut sa, mut st, mut n) = (0.0, 0.0, 0.0);
-    for p in &points {
-        if let Some(m) = mills.iter().find(|m| (m.force_pn - p.force).abs() < 1e-9) {
-            sa += (p.axial_diameter - m.da_um).powi(2);
-            st += (p.transverse_diameter - m.dt_um).powi(2);
-            n += 1.0;
-            assert!(
-                p.axial_diameter > m.da_lo && p.axial_diameter < m.da_hi,
-                "D_A at {} pN",
-                p.force
-            );
-        }
-    }
-    let (ra, rt, rb) = ((sa / n).sqrt(), (st / n).sqrt(), ((sa + st) / (2.0 * n)).sqrt());
+    let (ra, rt, n, _) = rms_against_mills(&[], false);
+    let rb = ((ra * ra + rt * rt) / 2.0).sqrt();
     eprintln!("calibrated: RMS D_A {ra:.3}, D_T {rt:.3}, both {rb:.3} µm over {n} forces");
     assert_eq!(n, 13.0);
     assert!((ra - 0.91).abs() < 0.03 && (rt - 0.68).abs() < 0.03, "RMS {ra} / {rt}");
@@ -117,28 +132,7 @@ fn calibrated_x0_set_meets_mills_in_both_diameters() {
         (s.membrane.persistence_scale, s.membrane.max_extension_ratio),
         (5.0, 2.0)
     );
-    let prepared = stretching::prepare(&s).unwrap();
-    let points = stretching::solve(&s, &prepared, |_| {}).unwrap();
-    let mills = mills_2004();
-    let (mut sa, mut st, mut n) = (0.0, 0.0, 0.0);
-    for p in &points {
-        if let Some(m) = mills.iter().find(|m| (m.force_pn - p.force).abs() < 1e-9) {
-            sa += (p.axial_diameter - m.da_um).powi(2);
-            st += (p.transverse_diameter - m.dt_um).powi(2);
-            n += 1.0;
-            assert!(
-                p.axial_diameter > m.da_lo && p.axial_diameter < m.da_hi,
-                "D_A at {} pN",
-                p.force
-            );
-            assert!(
-                p.transverse_diameter > m.dt_lo && p.transverse_diameter < m.dt_hi,
-                "D_T at {} pN",
-                p.force
-            );
-        }
-    }
-    let (ra, rt) = ((sa / n).sqrt(), (st / n).sqrt());
+    let (ra, rt, n, points) = rms_against_mills(&["membrane.parameters=\"calibrated-x0\""], true);
     eprintln!("calibrated-x0: RMS D_A {ra:.3}, D_T {rt:.3} µm over {n} forces");
     assert_eq!(n, 13.0);
     assert!(ra <= 0.5 && rt <= 0.5, "RMS {ra} / {rt}");
@@ -295,6 +289,28 @@ fn stretching_interrupted_and_resumed_is_bit_identical() {
     }
 }
 
+/// The shipped recovery scenario with `sets` (and no shapes file), run in `dir`: its
+/// `results.recovery`.
+fn recovery_results(dir: &std::path::Path, sets: &[&str]) -> serde_json::Value {
+    use hemodpd_scenario::RunContext;
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/recovery.toml");
+    let sets: Vec<String> = ["output.shapes=false"]
+        .iter()
+        .chain(sets)
+        .map(|s| s.to_string())
+        .collect();
+    let s = hemodpd_scenario::load(&path, &sets).unwrap();
+    let r = hemodpd_scenario::run(&s, &RunContext::new(dir, 0, false)).unwrap();
+    r["recovery"].clone()
+}
+
+/// The number at JSON pointer `p` in `v`.
+fn number(v: &serde_json::Value, p: &str) -> f64 {
+    v.pointer(p)
+        .and_then(|x| x.as_f64())
+        .unwrap_or_else(|| panic!("{p} in {v}"))
+}
+
 /// The shipped recovery scenario (`scenarios/recovery.toml`: N = 500, released from 100 pN, the
 /// calibrated set: η_m = 4.74e-7 N·s/m in the central form) against Hochmuth et al. 1979: the
 /// recovery time of its Kelvin–Voigt fit lies within 30 % of the mean of his four cells fitted
@@ -306,17 +322,9 @@ fn stretching_interrupted_and_resumed_is_bit_identical() {
 /// within 10 % (their t_c are 5 % and 2 % long).
 #[test]
 fn recovery_after_release_against_hochmuth_1979() {
-    use hemodpd_scenario::RunContext;
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/recovery.toml");
-    let s = hemodpd_scenario::load(&path, &["output.shapes=false".to_string()]).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let r = hemodpd_scenario::run(&s, &RunContext::new(dir.path(), 0, false)).unwrap();
-    let rec = &r["recovery"];
-    let f = |p: &str| {
-        rec.pointer(p)
-            .and_then(|v| v.as_f64())
-            .unwrap_or_else(|| panic!("{p} in {rec}"))
-    };
+    let rec = &recovery_results(dir.path(), &[]);
+    let f = |p: &str| number(rec, p);
     let (tc, mean) = (f("/t_c_s"), f("/hochmuth1979/mean_t_c_s"));
     eprintln!(
         "t_c {tc:.4} s (one run at ε: {:.4}, at ε/2: {:.4}); Hochmuth {mean:.4} ± {:.4} s; λ0 {:.3}, λ∞ {:.3}, rms {:.4}",
@@ -344,18 +352,9 @@ fn recovery_after_release_against_hochmuth_1979() {
 /// the bound), area and volume within 1 %.
 #[test]
 fn recovery_with_the_calibrated_x0_set_against_hochmuth_1979() {
-    use hemodpd_scenario::RunContext;
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/recovery.toml");
-    let sets = ["output.shapes=false", "membrane.parameters=\"calibrated-x0\""].map(String::from);
-    let s = hemodpd_scenario::load(&path, &sets).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let r = hemodpd_scenario::run(&s, &RunContext::new(dir.path(), 0, false)).unwrap();
-    let rec = &r["recovery"];
-    let f = |p: &str| {
-        rec.pointer(p)
-            .and_then(|v| v.as_f64())
-            .unwrap_or_else(|| panic!("{p} in {rec}"))
-    };
+    let rec = &recovery_results(dir.path(), &["membrane.parameters=\"calibrated-x0\""]);
+    let f = |p: &str| number(rec, p);
     let (tc, mean) = (f("/t_c_s"), f("/hochmuth1979/mean_t_c_s"));
     eprintln!(
         "calibrated-x0: t_c {tc:.4} s against Hochmuth {mean:.4} s, λ0 {:.3}",
