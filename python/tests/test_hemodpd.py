@@ -157,7 +157,9 @@ def test_bad_input_names_the_key(tmp_path):
 
 
 def test_ctrl_c_checkpoints_and_resume_finishes_as_if_uninterrupted(tmp_path):
-    sets = {"fluid.box_size": [8.0, 8.0, 8.0], "run.equilibration_steps": 200, "run.steps": 3000}
+    # long enough (≈ 2 s on 2 cores) that the interrupt, 0.3 s after the run starts, lands while it
+    # steps on any machine (3000 steps could end first on a quiet one)
+    sets = {"fluid.box_size": [8.0, 8.0, 8.0], "run.equilibration_steps": 200, "run.steps": 20000}
     whole = hemodpd.run(SCENARIOS / "dpd-fluid.toml", sets, out=tmp_path / "whole", threads=2, progress=False)
     out = tmp_path / "cut"
 
