@@ -116,12 +116,12 @@ fn calibrated_set_matches_what_the_fit_found() {
 
 /// The shipped stretching scenario runs the named set `"calibrated-x0"` (docs/fit.md: Mills 2004
 /// fitted with the links' maximum extension free, Lmax/L0 = 2.0 instead of 3.17, persistence
-/// scale 5, v = 0.98): the RMS of D_A
-/// and of D_T against Mills are both ≤ 0.5 µm, the target, which neither diameter of
-/// `"calibrated"` meets (measured 0.38 / 0.47 µm against 0.91 / 0.69). The set's values reach
-/// the scenario; D_A and D_T lie inside Mills' error bars at every force (the paper's and the
-/// two-parameter sets leave D_T outside them from 16 to 109 pN), and the stiffening shows: D_A
-/// grows by less than 0.3 µm from 172 to 193 pN (Mills 0.44 µm; the paper's set 0.66 µm).
+/// scale 5, v = 0.98): the RMS of D_A and of D_T against Mills are both ≤ 0.5 µm, the issue's
+/// target, which neither diameter of `"calibrated"` meets (measured 0.38 / 0.47 µm against
+/// 0.91 / 0.69). The set's values reach the scenario; D_A and D_T lie inside Mills' error bars
+/// at every force (the paper's and the two-parameter sets leave D_T outside them from 16 to
+/// 109 pN), and the stiffening shows: D_A grows by less than 0.3 µm from 172 to 193 pN (Mills
+/// 0.44 µm; the paper's set 0.66 µm).
 #[test]
 fn calibrated_x0_set_meets_mills_in_both_diameters() {
     let s = scenario(&[]);
@@ -320,8 +320,8 @@ fn number(v: &serde_json::Value, p: &str) -> f64 {
 /// it, with a σ of 17 %; docs/validation.md's target is 30 %). λ0 is 2.71: the calibrated cell
 /// is stretched further at 100 pN than his cells started (1.9–2.2), which the test bounds
 /// (2.3–2.8) rather than hides. The cell keeps its area and volume within 1 % (the
-/// constraints' tolerance), and the time series has every sample. The two runs behind the extrapolation agree with it to
-/// within 10 % (their t_c are 8 % and 4 % long).
+/// constraints' tolerance), and the time series has every sample. The two runs behind the
+/// extrapolation agree with it to within 10 % (their t_c are 8 % and 4 % long).
 #[test]
 fn recovery_after_release_against_hochmuth_1979() {
     let dir = tempfile::tempdir().unwrap();
