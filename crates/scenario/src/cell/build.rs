@@ -143,18 +143,16 @@ pub(crate) fn cell_fluid_field(
     let set = |f: &mut ForceField, a: u16, b: u16, q: PairParams| f.set_pair(a as usize, b as usize, q);
     set(&mut f, WALL, WALL, none).map_err(engine_err)?;
     set(&mut f, INNER, INNER, inner).map_err(engine_err)?;
-    set(&mut f, INNER, WALL, inner).map_err(engine_err)?;
-    set(
-        &mut f,
-        INNER,
-        OUTER,
-        PairParams {
-            gamma: 0.0,
-            kbt: 0.0,
-            ..p
-        },
-    )
-    .map_err(engine_err)?;
+    // the cytosol meets the plasma and the wall only through the membrane: repulsion keeps each
+    // side's density, but a friction across the membrane would drag the cell's interior by the
+    // fluid outside it (a cell pressed against a tube's wall by the wall at rest)
+    let across_membrane = PairParams {
+        gamma: 0.0,
+        kbt: 0.0,
+        ..p
+    };
+    set(&mut f, INNER, WALL, across_membrane).map_err(engine_err)?;
+    set(&mut f, INNER, OUTER, across_membrane).map_err(engine_err)?;
     set(&mut f, MEMBRANE, OUTER, fsi(eta_o)).map_err(engine_err)?;
     set(&mut f, MEMBRANE, WALL, fsi(eta_o)).map_err(engine_err)?;
     set(&mut f, MEMBRANE, INNER, fsi(eta_i)).map_err(engine_err)?;
@@ -361,5 +359,27 @@ pub fn describe_engine_error(e: hemodpd_engine::EngineError) -> RunError {
             RunError::Engine(format!("{e} — the part is {}; {}", part(*ptype), hint(*ptype)))
         }
         _ => RunError::Engine(e.to_string()),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The cytosol meets the plasma and the wall by repulsion alone (no friction, no noise:
+    /// nothing crosses the membrane but pressure); the vertices have each side's friction, the
+    /// cytosol its own fluid's.
+    #[test]
+    fn the_cytosol_has_no_friction_across_the_membrane() {
+        let fluid = FluidModel::capillary();
+        let f = cell_fluid_field(&fluid, 5.0, 3.7, 1).unwrap();
+        for other in [OUTER, WALL] {
+            let q = f.pair(INNER as usize, other as usize);
+            assert_eq!((q.gamma, q.kbt, q.a), (0.0, 0.0, fluid.pair.a), "cytosol–{other}");
+        }
+        assert_eq!(f.pair(OUTER as usize, WALL as usize).gamma, fluid.pair.gamma);
+        assert_eq!(f.pair(INNER as usize, INNER as usize).gamma, fluid.inner_gamma(5.0));
+        assert!(f.pair(MEMBRANE as usize, WALL as usize).gamma > 0.0);
+        assert!(f.pair(MEMBRANE as usize, INNER as usize).gamma > f.pair(MEMBRANE as usize, OUTER as usize).gamma);
     }
 }
