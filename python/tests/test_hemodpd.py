@@ -172,9 +172,15 @@ def test_ctrl_c_checkpoints_and_resume_finishes_as_if_uninterrupted(tmp_path):
                 return
             time.sleep(0.005)
 
+    # Python's own Ctrl-C handler, whatever this process inherited: a shell starts a background
+    # job (`cmd &`) with SIGINT ignored, and Python then leaves it ignored
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     threading.Thread(target=interrupt_when_stepping, daemon=True).start()
-    with pytest.raises(KeyboardInterrupt, match="resume"):
-        hemodpd.run(SCENARIOS / "dpd-fluid.toml", sets, out=out, threads=2, progress=False)
+    try:
+        with pytest.raises(KeyboardInterrupt, match="resume"):
+            hemodpd.run(SCENARIOS / "dpd-fluid.toml", sets, out=out, threads=2, progress=False)
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert (out / "checkpoint.h5").exists() and not (out / "summary.json").exists()
     resumed = hemodpd.resume(out, threads=2, progress=False)
     fp = resumed.summary["results"]["final_state_fingerprint"]
