@@ -449,7 +449,10 @@ pub struct Plan<'a> {
 
 impl<'a> Plan<'a> {
     pub fn new(s: &'a CapillaryScenario) -> Result<Self, RunError> {
-        let setup = CellSetup::new(s.physical()?, s.model.shared(), &s.cell)?;
+        let mut setup = CellSetup::new(s.physical()?, s.model.shared(), &s.cell)?;
+        if let Some(w) = pressed_compression_warning(s.tube.diameter_m(), &setup) {
+            setup.map.warnings.push(w);
+        }
         let (map, fluid, dt) = (&setup.map, &setup.fluid, setup.dt);
         let radius = map.length_to_model(0.5 * s.tube.diameter_m());
         let length = map.length_to_model(s.tube.length_m());
@@ -1293,6 +1296,30 @@ fn results(run: &Run, ctx: &RunContext) -> Result<serde_json::Value, RunError> {
     Ok(out)
 }
 
+/// Ma²/Re (model) above which a cell pressed into a tube narrower than it is warned of before
+/// the run: the capillary fluid's 0.059 in the 4.7 µm tube compressed the fluid by 30 % across
+/// the cell and halved its velocity; the dense fluid's 0.0013 held it to 5 % (docs/capillary.md,
+/// "Compression across the cell").
+const PRESSED_MACH2_OVER_RE_WARNING: f64 = 0.01;
+
+/// The warning, before any work, for a tube of `diameter_m` narrower than the resting cell
+/// when the chosen fluid's Ma²/Re exceeds [`PRESSED_MACH2_OVER_RE_WARNING`].
+fn pressed_compression_warning(diameter_m: f64, setup: &CellSetup) -> Option<String> {
+    if diameter_m >= setup.sys.cell_diameter_m {
+        return None;
+    }
+    let g = units::groups_model(&setup.sys, &setup.map, &setup.fluid);
+    let k = g.mach * g.mach / g.reynolds;
+    (k > PRESSED_MACH2_OVER_RE_WARNING).then(|| {
+        format!(
+            "the tube ({:.1} µm) is narrower than the cell ({:.1} µm), and the {} fluid's Ma²/Re = {k:.3} lets the pressure the cell holds compress it (in the 4.7 µm tube by 30 %, which halved the cell's velocity); model.fluid = \"dense\" keeps Ma²/Re below {PRESSED_MACH2_OVER_RE_WARNING} (docs/capillary.md, \"Compression across the cell\")",
+            diameter_m * 1e6,
+            setup.sys.cell_diameter_m * 1e6,
+            setup.fluid.name
+        )
+    })
+}
+
 /// Plasma density difference across the cell (behind less ahead, over the fluid's density)
 /// above which a run warns. Measured: 0.16 in the shipped 10 µm default, 0.30 in the 6.6 and
 /// 4.7 µm tubes at 10 mmHg/mm, where a lower Mach bound or the dense fluid moved the cell's
@@ -1547,6 +1574,39 @@ mod tests {
         assert!((b - b0 - 0.3).abs() < 0.01 && a == a0, "{b0} → {b}, {a0} → {a}");
         let long = [DVec3::new(0.0, 0.0, 0.0), DVec3::new(0.0, 0.0, 90.0)];
         assert!(density_across_cell((l, rw, n), &pos, &ptype, &long).0.is_nan());
+    }
+
+    /// A tube narrower than the cell warns before the run when the fluid's Ma²/Re lets the
+    /// cell's pressure compress it: the capillary fluid at 4.7 and 6.6 µm does, the dense
+    /// fluid at 4.7 µm and the capillary fluid in the 10 µm default do not.
+    #[test]
+    fn a_pressed_cell_in_a_compressible_fluid_is_warned_of() {
+        let file = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenarios/capillary-tomaiuolo.toml");
+        let text = std::fs::read_to_string(file).unwrap();
+        let warned = |text: &str, sets: &[&str]| {
+            let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+            let crate::registry::Scenario::Capillary(s) = crate::registry::load_str(text, "t.toml", &sets).unwrap()
+            else {
+                panic!("not a capillary scenario")
+            };
+            let plan = Plan::new(&s).unwrap();
+            plan.setup.map.warnings.iter().any(|w| w.contains("Ma²/Re"))
+        };
+        let narrow = ["tube.diameter_um=4.7", "model.length_um_per_rc=0.5"];
+        assert!(warned(&text, &narrow));
+        assert!(warned(&text, &[]));
+        assert!(!warned(
+            &text,
+            &[
+                narrow[0],
+                narrow[1],
+                "model.fluid=\"dense\"",
+                "model.thermal_factor=2.08"
+            ]
+        ));
+        let default =
+            std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenarios/capillary.toml")).unwrap();
+        assert!(!warned(&default, &[]));
     }
 
     /// The wall radius carries the no-slip flux of the physical radius: R_w⁴(1 + 4b/R_w) = R⁴.
